@@ -1,0 +1,229 @@
+"""The ``cade`` command: a thin layer over the library that parses, validates and prints.
+
+Heavy modules (NumPy, OpenCV, the matchers) are imported inside the commands, so
+``cade --help`` and ``cade --version`` answer at once. Any user error ends as one line
+on stderr and a non-zero exit; outputs are written atomically and only at the end.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cade_cli import __version__
+
+METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm")
+"""Registered matchers, listed here so that --help needs no heavy import (a test keeps
+this in step with :data:`cade_cli.matching.MATCHERS`)."""
+
+EXIT_INPUT_ERROR = 1
+EXIT_USAGE_ERROR = 2
+
+app = typer.Typer(
+    name="cade",
+    help="Cross-spectral stereo: disparity between bands seen through different filters, and band registration.",
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        print(f"cade {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+    ] = False,
+) -> None:
+    """Cross-spectral stereo toolkit (CADE, ICASSP 2024)."""
+
+
+MethodOption = Annotated[
+    str, typer.Option("--method", "-m", help=f"Matcher: {', '.join(METHOD_NAMES)}.")
+]
+MaxDispOption = Annotated[
+    Optional[int],
+    typer.Option("--max-disp", min=1, help="Largest disparity searched, px (default: a quarter of the width)."),
+]
+MinDispOption = Annotated[
+    int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
+]
+PreprocessOption = Annotated[
+    str, typer.Option("--preprocess", help="'cade' (color agnostic transform, for different bands) or 'none'.")
+]
+
+
+def _band_option(side: str) -> object:
+    return typer.Option(f"--{side}-band", min=0, help=f"0-based band of a multi-band {side} file (default: luminance of colour images).")
+
+
+@app.command()
+def disparity(
+    left: Annotated[Path, typer.Argument(help="Reference (left) image.", show_default=False)],
+    right: Annotated[Path, typer.Argument(help="Other (right) image, possibly another band.", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Disparity file: .pfm, .tif, .png (KITTI uint16) or .npy.")],
+    method: MethodOption = "census-sgm",
+    max_disp: MaxDispOption = None,
+    min_disp: MinDispOption = 0,
+    preprocess: PreprocessOption = "cade",
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
+    left_band: Annotated[Optional[int], _band_option("left")] = None,
+    right_band: Annotated[Optional[int], _band_option("right")] = None,
+) -> None:
+    """Dense disparity of LEFT against RIGHT, written to OUTPUT."""
+    from cade_cli.disparity_io import DISPARITY_SUFFIXES, write_disparity, write_visualization
+    from cade_cli.stereo import estimate_disparity
+
+    _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
+    if vis is not None:
+        _check_output(vis, suffixes=(".png",), inputs=(left, right, output))
+    left_image, right_image = _read_pair(left, right, left_band, right_band)
+    started = time.perf_counter()
+    max_disp = _resolve_max_disp(max_disp, left_image.shape[1])
+    result = estimate_disparity(
+        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess
+    )
+    seconds = time.perf_counter() - started
+    stored = result.disparity.copy()
+    write_disparity(output, stored)
+    if vis is not None:
+        write_visualization(vis, _masked(result.disparity, result.valid))
+    height, width = stored.shape
+    print(
+        f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
+        f"disparity {float(stored.min()):.2f}..{float(stored.max()):.2f} px, "
+        f"valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s"
+    )
+
+
+@app.command()
+def register(
+    moving: Annotated[Path, typer.Argument(help="Band to warp (right view).", show_default=False)],
+    reference: Annotated[Path, typer.Argument(help="Reference band (left view).", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Float32 TIFF: reference, registered, validity bands.")],
+    disparity_file: Annotated[
+        Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it.")
+    ] = None,
+    method: MethodOption = "census-sgm",
+    max_disp: MaxDispOption = None,
+    min_disp: MinDispOption = 0,
+    preprocess: PreprocessOption = "cade",
+    fill: Annotated[
+        str, typer.Option("--fill", help="Occluded pixels: 'row' (background along the row) or 'none' (NaN).")
+    ] = "row",
+    moving_band: Annotated[Optional[int], typer.Option("--moving-band", min=0, help="0-based band of the moving file.")] = None,
+    reference_band: Annotated[
+        Optional[int], typer.Option("--reference-band", min=0, help="0-based band of the reference file.")
+    ] = None,
+) -> None:
+    """Warp MOVING into the view of REFERENCE and write both as one multi-band TIFF."""
+    from cade_cli.disparity_io import read_disparity
+    from cade_cli.registration import register as register_band
+    from cade_cli.registration_io import write_registration
+
+    inputs = tuple(p for p in (moving, reference, disparity_file) if p is not None)
+    _check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
+    reference_image, moving_image = _read_pair(
+        reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
+    )
+    started = time.perf_counter()
+    if disparity_file is not None:
+        result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file), fill=fill)
+        source = f"disparity from {disparity_file}"
+    else:
+        max_disp = _resolve_max_disp(max_disp, reference_image.shape[1])
+        result = register_band(
+            moving_image, reference_image, method=method, max_disp=max_disp, min_disp=min_disp,
+            preprocess=preprocess, fill=fill,
+        )
+        source = f"{method}+{preprocess} over [{min_disp}, {max_disp}]"
+    seconds = time.perf_counter() - started
+    write_registration(output, result)
+    height, width = result.reference.shape
+    print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")
+
+
+def _read_pair(
+    left: Path, right: Path, left_band: int | None, right_band: int | None,
+    names: tuple[str, str] = ("--left-band", "--right-band"),
+):
+    from cade_cli.imageio import read_band
+
+    images = []
+    for path, band, option in ((left, left_band, names[0]), (right, right_band, names[1])):
+        image, note = read_band(path, band)
+        if note:
+            _note(f"{note}; pick a band with {option} N")
+        images.append(image)
+    return images
+
+
+def _resolve_max_disp(max_disp: int | None, width: int) -> int:
+    from cade_cli.stereo import default_max_disparity
+
+    if max_disp is not None:
+        return max_disp
+    chosen = default_max_disparity(width)
+    _note(f"--max-disp not given: searching up to {chosen} px (a quarter of the width); "
+          "set it to your scene's largest disparity for speed and accuracy")
+    return chosen
+
+
+def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:
+    """Refuse, before any work, outputs we could not write or must not overwrite."""
+    from cade_cli.errors import CadeError
+
+    if path.suffix.lower() not in suffixes:
+        raise CadeError(f"cannot write {path}: unsupported extension {path.suffix or '(none)'}; use one of {', '.join(suffixes)}")
+    if not path.parent.is_dir():
+        raise CadeError(f"output directory {path.parent} does not exist; create it first")
+    if path.is_dir():
+        raise CadeError(f"output {path} is a directory; give a file name")
+    for source in inputs:
+        if source.exists() and path.exists() and path.resolve() == source.resolve():
+            raise CadeError(f"output {path} is also an input; choose another output name")
+
+
+def _masked(disparity, valid):
+    import numpy as np
+
+    return np.where(valid, disparity, np.float32(np.nan))
+
+
+def _note(message: str) -> None:
+    print(f"note: {message}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the app, turning every user error into one stderr line."""
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")  # decoders would print their own warnings
+    from cade_cli.errors import CadeError
+
+    argv = sys.argv[1:] if argv is None else argv
+    try:
+        code = app(args=argv or ["--help"], standalone_mode=False)
+    except CadeError as error:
+        _fail(str(error), EXIT_INPUT_ERROR)
+    except typer.TyperException as error:  # usage errors: unknown option, bad value, ...
+        _fail(f"{error.format_message().rstrip('.')}; see 'cade --help'", getattr(error, "exit_code", EXIT_USAGE_ERROR))
+    except (typer.Abort, KeyboardInterrupt):
+        _fail("interrupted", 130)
+    except MemoryError:
+        _fail("out of memory; lower --max-disp or downscale the images", EXIT_INPUT_ERROR)
+    sys.exit(code if isinstance(code, int) else 0)
+
+
+def _fail(message: str, code: int) -> None:
+    print(f"cade: error: {message.splitlines()[0] if message else 'failed'}", file=sys.stderr)
+    sys.exit(code)

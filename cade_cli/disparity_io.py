@@ -1,0 +1,333 @@
+"""Read and write disparity maps, and colour them for viewing.
+
+In memory a disparity map is an (H, W) float32 array in pixels of its image, with NaN
+marking invalid pixels. On disk each format uses its own marker (STYLE.md habit 7):
+
+- ``.pfm``: float32, little-endian, rows bottom-to-top, ``inf`` = invalid.
+- ``.tif`` / ``.tiff``: float32, NaN = invalid.
+- ``.png``: uint16 ``round(d * 256)``, 0 = invalid (KITTI); only 0 <= d < 256.
+- ``.npy``: float32, NaN = invalid.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tifffile
+
+from cade_cli.atomic import atomic_output
+from cade_cli.errors import CadeError
+from cade_cli.imageio import check_input_file, decode_with_cv2, one_line_message, read_bytes
+
+DISPARITY_SUFFIXES: tuple[str, ...] = (".pfm", ".tif", ".tiff", ".png", ".npy")
+"""Extensions :func:`read_disparity` and :func:`write_disparity` handle (any case)."""
+
+PNG_DISPARITY_SCALE = 256.0
+"""16-bit PNG stores ``round(d * 256)`` (KITTI), so d in [0, 256) at 1/256 px steps."""
+
+_PFM_HEADER_LIMIT = 256
+"""Bytes searched for the three PFM header lines; longer headers are malformed."""
+
+
+def write_disparity(path: Path, disparity: np.ndarray) -> None:
+    """Write an (H, W) disparity map, the format chosen by ``path``'s extension.
+
+    Written all-or-nothing through :func:`cade_cli.atomic.atomic_output`. NaN and
+    ``±inf`` both count as invalid and are stored as the format's marker (the caller's
+    array is not modified). In a PNG a valid value that would round to 0 (d < 1/512)
+    is stored as 1 (d = 1/256) so that it stays valid, and values in
+    [65535.5 / 256, 256) are stored as 65535.
+
+    Args:
+        path: output file ending in one of :data:`DISPARITY_SUFFIXES`.
+        disparity: (H, W) real array, pixels, NaN = invalid.
+
+    Raises:
+        CadeError: unsupported extension, not 2-D, PNG with valid values outside
+            [0, 256), missing output directory, or an OS error while writing.
+    """
+    path = Path(path)
+    suffix = _disparity_suffix(path)
+    values = _as_disparity(disparity)
+    if suffix == ".pfm":
+        payload = np.where(np.isnan(values), np.float32(np.inf), values)
+        _write_atomically(path, lambda tmp: write_pfm(tmp, payload))
+    elif suffix in (".tif", ".tiff"):
+        _write_atomically(path, lambda tmp: tifffile.imwrite(tmp, values, photometric="minisblack"))
+    elif suffix == ".png":
+        encoded = _encode_png_disparity(values, path)
+        _write_atomically(path, lambda tmp: _write_png(tmp, encoded))
+    elif suffix == ".npy":
+        _write_atomically(path, lambda tmp: _write_npy(tmp, values))
+    else:
+        raise AssertionError(f"unhandled disparity suffix {suffix}")
+
+
+def read_disparity(path: Path) -> np.ndarray:
+    """Read a disparity map written by :func:`write_disparity` (or by a dataset).
+
+    PFM ``inf`` (any non-finite), PNG 0 and TIFF/NPY NaN become NaN; PNG is uint16 / 256.
+
+    Returns:
+        (H, W) float32 disparity in pixels, NaN = invalid.
+
+    Raises:
+        CadeError: missing, unsupported, corrupt file, or content that is not one
+            band of disparities (e.g. a 3-channel PFM or an 8-bit PNG).
+    """
+    path = check_input_file(path, suffixes=DISPARITY_SUFFIXES)
+    suffix = path.suffix.lower()
+    if suffix == ".pfm":
+        values = read_pfm(path)
+    elif suffix in (".tif", ".tiff"):
+        values = _read_tiff_disparity(path)
+    elif suffix == ".png":
+        return _read_png_disparity(path)
+    elif suffix == ".npy":
+        values = _read_npy_disparity(path)
+    else:
+        raise AssertionError(f"unhandled disparity suffix {suffix}")
+    if values.ndim != 2:
+        raise CadeError(f"{path} holds an array of shape {values.shape}, not one (H, W) disparity map; save one band")
+    return np.where(np.isfinite(values), values, np.float32(np.nan)).astype(np.float32)
+
+
+def read_pfm(path: Path) -> np.ndarray:
+    """Read a PFM file as stored: ``Pf`` -> (H, W), ``PF`` -> (H, W, 3) float32.
+
+    Either byte order (negative scale = little-endian); rows are flipped from the
+    file's bottom-to-top order to top-to-bottom. ``inf`` and NaN are kept as stored.
+
+    Raises:
+        CadeError: malformed header, or fewer data bytes than the header announces.
+    """
+    path = check_input_file(path, suffixes=(".pfm",))
+    raw = read_bytes(path)
+    channels, width, height, little_endian, start = _parse_pfm_header(raw, path)
+    count = width * height * channels
+    if len(raw) - start < 4 * count:
+        raise CadeError(
+            f"{path} is truncated: header announces {width}x{height}x{channels} floats "
+            f"({4 * count} bytes) but {len(raw) - start} bytes follow; re-export it"
+        )
+    dtype = np.dtype("<f4" if little_endian else ">f4")
+    data = np.frombuffer(raw, dtype=dtype, count=count, offset=start)
+    shape = (height, width) if channels == 1 else (height, width, 3)
+    return np.ascontiguousarray(data.reshape(shape)[::-1], dtype=np.float32)
+
+
+def write_pfm(path: Path, array: np.ndarray) -> None:
+    """Write (H, W) or (H, W, 3) values as PFM, non-atomically, values as given.
+
+    Little-endian float32, scale -1.0, rows bottom-to-top (the PFM convention); no
+    NaN/inf translation. :func:`write_disparity` is the safe entry point.
+    """
+    array = np.asarray(array)
+    if array.ndim == 2:
+        kind = "Pf"
+    elif array.ndim == 3 and array.shape[2] == 3:
+        kind = "PF"
+    else:
+        raise CadeError(f"PFM holds (H, W) or (H, W, 3) arrays, got shape {array.shape}")
+    height, width = array.shape[:2]
+    with open(path, "wb") as stream:
+        stream.write(f"{kind}\n{width} {height}\n-1.0\n".encode("ascii"))
+        stream.write(np.ascontiguousarray(array[::-1], dtype="<f4").tobytes())
+
+
+def colorize_disparity(
+    disparity: np.ndarray, *, vmin: float | None = None, vmax: float | None = None
+) -> np.ndarray:
+    """Colour a disparity map with the Turbo colormap, for looking at.
+
+    Args:
+        disparity: (H, W) pixels, NaN (any non-finite) = invalid.
+        vmin, vmax: disparities mapped to the two ends of the colormap; values
+            outside are clipped. Default: the finite minimum and maximum.
+
+    Returns:
+        (H, W, 3) uint8 in B, G, R order (ready for ``cv2.imwrite``); invalid pixels
+        black. With an empty range (vmin == vmax) values above it get the high end's
+        colour and the rest the low end's (a constant map is all low-end colour).
+
+    Raises:
+        CadeError: not 2-D, or ``vmax < vmin``.
+    """
+    values = _as_disparity(disparity)
+    valid = np.isfinite(values)
+    low, high = _colour_range(values[valid], vmin=vmin, vmax=vmax)
+    span = high - low
+    scaled = np.zeros(values.shape, dtype=np.float64)
+    if span > 0:
+        scaled[valid] = np.clip((values[valid] - low) / span, 0.0, 1.0)
+    else:
+        scaled[valid] = values[valid] > low
+    levels = np.rint(scaled * 255.0).astype(np.uint8)
+    coloured = cv2.applyColorMap(levels, cv2.COLORMAP_TURBO)
+    coloured[~valid] = 0
+    return coloured
+
+
+def write_visualization(
+    path: Path, disparity: np.ndarray, *, vmin: float | None = None, vmax: float | None = None
+) -> None:
+    """Write :func:`colorize_disparity` of ``disparity`` as a PNG, all-or-nothing.
+
+    Raises:
+        CadeError: ``path`` does not end in .png, plus :func:`colorize_disparity`'s errors.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".png":
+        raise CadeError(f"visualization {path} must be a .png file; change its extension to .png")
+    coloured = colorize_disparity(disparity, vmin=vmin, vmax=vmax)
+    _write_atomically(path, lambda tmp: _write_png(tmp, coloured))
+
+
+def _disparity_suffix(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix not in DISPARITY_SUFFIXES:
+        shown = path.suffix or "(none)"
+        raise CadeError(
+            f"cannot write disparity to {path}: unsupported extension {shown}; use one of {', '.join(DISPARITY_SUFFIXES)}"
+        )
+    return suffix
+
+
+def _as_disparity(disparity: np.ndarray) -> np.ndarray:
+    """A float32 (H, W) copy with every non-finite value set to NaN."""
+    array = np.asarray(disparity)
+    if array.ndim != 2:
+        raise CadeError(f"a disparity map must have shape (H, W), got shape {array.shape}; pass one band")
+    if not (np.issubdtype(array.dtype, np.floating) or np.issubdtype(array.dtype, np.integer)):
+        raise CadeError(f"a disparity map must hold real numbers, got dtype {array.dtype}")
+    values = array.astype(np.float32)  # always a copy: the caller's array is never touched
+    values[~np.isfinite(values)] = np.nan
+    return values
+
+
+def _encode_png_disparity(values: np.ndarray, path: Path) -> np.ndarray:
+    """(H, W) uint16 ``round(d * 256)``, 0 where NaN; refuse d outside [0, 256)."""
+    valid = ~np.isnan(values)
+    if valid.any():
+        low, high = float(values[valid].min()), float(values[valid].max())
+        if low < 0 or high >= 256:
+            raise CadeError(
+                f"disparities in [{low:.3f}, {high:.3f}] do not fit a 16-bit PNG ({path}), which holds 0 <= d < 256; "
+                "save as .pfm or .tif instead"
+            )
+    encoded = np.zeros(values.shape, dtype=np.uint16)
+    encoded[valid] = np.clip(np.rint(values[valid] * PNG_DISPARITY_SCALE), 1, 65535).astype(np.uint16)
+    return encoded
+
+
+def _read_png_disparity(path: Path) -> np.ndarray:
+    encoded = decode_with_cv2(path)
+    if encoded.dtype != np.uint16 or encoded.ndim != 2:
+        channels = 1 if encoded.ndim == 2 else encoded.shape[2]
+        raise CadeError(
+            f"{path} is a {encoded.dtype} PNG with {channels} channel(s); disparity PNGs are 16-bit greyscale "
+            "(d = value / 256, 0 = invalid); convert it or use .pfm"
+        )
+    disparity = encoded.astype(np.float32) / np.float32(PNG_DISPARITY_SCALE)
+    disparity[encoded == 0] = np.nan
+    return disparity
+
+
+def _read_tiff_disparity(path: Path) -> np.ndarray:
+    try:
+        values = tifffile.imread(path)
+    except Exception as exc:  # tifffile raises many types on corrupt files; none may escape
+        raise CadeError(f"cannot read {path} as TIFF: {one_line_message(exc)}; re-export it") from exc
+    if not np.issubdtype(values.dtype, np.floating):
+        raise CadeError(f"{path} stores {values.dtype} values; a disparity TIFF must be float32 (pixels, NaN = invalid)")
+    return values.astype(np.float32)
+
+
+def _read_npy_disparity(path: Path) -> np.ndarray:
+    try:
+        values = np.load(path, allow_pickle=False)
+    except Exception as exc:  # numpy raises several types on corrupt files; none may escape
+        raise CadeError(f"cannot read {path} as .npy: {one_line_message(exc)}; re-save it with numpy.save") from exc
+    if not isinstance(values, np.ndarray) or not (
+        np.issubdtype(values.dtype, np.floating) or np.issubdtype(values.dtype, np.integer)
+    ):
+        raise CadeError(f"{path} does not hold a numeric array; save a float32 (H, W) array with numpy.save")
+    return values.astype(np.float32)
+
+
+def _parse_pfm_header(raw: bytes, path: Path) -> tuple[int, int, int, bool, int]:
+    """(channels, width, height, little_endian, data offset) from a PFM file's bytes.
+
+    The header is four whitespace-separated tokens (``Pf``/``PF``, width, height, scale)
+    followed by one whitespace character (``\\r\\n`` accepted).
+    """
+    tokens, end = _leading_tokens(raw[:_PFM_HEADER_LIMIT], count=4)
+    bad = f"{path} is not a valid PFM file (expected header 'Pf' or 'PF', 'W H', scale); re-export it"
+    if len(tokens) < 4 or tokens[0] not in (b"Pf", b"PF"):
+        raise CadeError(bad)
+    try:
+        width, height, scale = int(tokens[1]), int(tokens[2]), float(tokens[3])
+    except ValueError as exc:
+        raise CadeError(bad) from exc
+    if width <= 0 or height <= 0 or scale == 0.0 or not np.isfinite(scale):
+        raise CadeError(bad)
+    if raw[end : end + 2] == b"\r\n":
+        end += 1
+    channels = 1 if tokens[0] == b"Pf" else 3
+    return channels, width, height, scale < 0, end + 1
+
+
+def _leading_tokens(text: bytes, *, count: int) -> tuple[list[bytes], int]:
+    """The first ``count`` whitespace-separated tokens of ``text`` and the index just after the last."""
+    tokens: list[bytes] = []
+    position = 0
+    while len(tokens) < count:
+        while position < len(text) and text[position : position + 1].isspace():
+            position += 1
+        start = position
+        while position < len(text) and not text[position : position + 1].isspace():
+            position += 1
+        if start == position or position == len(text):
+            break  # no token, or a token running into the end of the searched bytes
+        tokens.append(text[start:position])
+    return tokens, position
+
+
+def _colour_range(valid_values: np.ndarray, *, vmin: float | None, vmax: float | None) -> tuple[float, float]:
+    """The (low, high) disparities of the colormap ends."""
+    if vmin is not None and vmax is not None and vmax < vmin:
+        raise CadeError(f"vmax {vmax} is below vmin {vmin}; swap them")
+    if valid_values.size == 0:
+        return 0.0, 0.0
+    low = float(valid_values.min()) if vmin is None else float(vmin)
+    high = float(valid_values.max()) if vmax is None else float(vmax)
+    if vmin is None:
+        low = min(low, high)
+    if vmax is None:
+        high = max(high, low)
+    return low, high
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    """Encode ``image`` (uint8/uint16, grey or BGR) as PNG into ``path``."""
+    ok, buffer = cv2.imencode(".png", image)
+    if not ok:
+        raise CadeError(f"OpenCV could not encode a {image.dtype} image of shape {image.shape} as PNG")
+    Path(path).write_bytes(buffer.tobytes())
+
+
+def _write_npy(path: Path, values: np.ndarray) -> None:
+    with open(path, "wb") as stream:
+        np.save(stream, values, allow_pickle=False)
+
+
+def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
+    """Run ``write(temporary)`` inside :func:`atomic_output`; OS errors become CadeError."""
+    try:
+        with atomic_output(path) as temporary:
+            write(temporary)
+    except OSError as exc:
+        raise CadeError(f"could not write {path}: {exc.strerror or exc}; check free space and permissions") from exc

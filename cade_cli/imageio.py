@@ -1,0 +1,234 @@
+"""Read images and pick the band to match on.
+
+Everything comes back as float32: integer images scaled to [0, 1] by their dtype's
+range, float TIFF data unchanged. Colour comes back in R, G, B(, A) order whatever the
+decoder's habit. Any problem with a file is a :class:`CadeError` naming the file and
+the fix; no decoder exception escapes.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import tifffile
+
+from cade_cli.errors import CadeError
+
+SUPPORTED_IMAGE_SUFFIXES: tuple[str, ...] = (
+    ".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".pgm", ".pnm", ".tif", ".tiff",
+)
+"""Extensions :func:`load_image` reads (compared case-insensitively)."""
+
+TIFF_SUFFIXES: tuple[str, ...] = (".tif", ".tiff")
+
+LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.299, 0.587, 0.114)
+"""Rec. 601 weights of R, G, B for the luminance of a colour image."""
+
+_INTEGER_SCALE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
+_FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+def check_input_file(path: Path, *, suffixes: tuple[str, ...]) -> Path:
+    """Return ``Path(path)`` if it is an existing, non-empty file with one of ``suffixes``.
+
+    Raises:
+        CadeError: missing file, a directory, an unsupported extension, or 0 bytes.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise CadeError(f"{path} does not exist; check the path")
+    if path.is_dir():
+        raise CadeError(f"{path} is a directory, not a file; give the path of a file inside it")
+    if path.suffix.lower() not in suffixes:
+        shown = path.suffix or "(none)"
+        raise CadeError(f"{path} has unsupported extension {shown}; use one of {', '.join(suffixes)}")
+    if path.stat().st_size == 0:
+        raise CadeError(f"{path} is empty (0 bytes); re-export or re-download it")
+    return path
+
+
+def read_bytes(path: Path) -> bytes:
+    """The content of ``path``; an ``OSError`` (permissions, I/O) becomes :class:`CadeError`."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise CadeError(f"cannot read {path}: {exc.strerror or exc}; check its permissions") from exc
+
+
+def decode_with_cv2(path: Path) -> np.ndarray:
+    """Decode ``path`` with ``cv2.imdecode(IMREAD_UNCHANGED)``, as stored.
+
+    Returns:
+        (H, W) or (H, W, C) array of the file's dtype; colour in cv2's B, G, R(, A) order.
+
+    Raises:
+        CadeError: the file is corrupt, truncated, or not in the format its name says.
+    """
+    buffer = np.frombuffer(read_bytes(path), dtype=np.uint8)
+    try:
+        image = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise CadeError(f"cannot decode {path}: {one_line_message(exc)}; the file is corrupt, re-export it") from exc
+    if image is None:
+        raise CadeError(f"cannot decode {path} as {path.suffix} image; the file is corrupt or truncated, re-export it")
+    return image
+
+
+def load_image(path: Path) -> np.ndarray:
+    """Read an image file as float32.
+
+    PNG, JPEG, BMP and PPM/PGM/PNM (8 and 16 bit) are decoded by OpenCV; TIFF by
+    tifffile (uint8, uint16, float32 or float64; one band, several samples per pixel
+    interleaved or planar, or several pages, which become bands in file order).
+
+    Returns:
+        (H, W) or (H, W, C) float32. uint8 data is divided by 255 and uint16 by 65535,
+        giving [0, 1]; float TIFF data is kept as stored (any range, NaN included).
+        Colour is in R, G, B(, A) order.
+
+    Raises:
+        CadeError: missing, unsupported, unreadable, corrupt or empty file, or a TIFF
+            sample type other than uint8, uint16, float32, float64.
+    """
+    return _load(path)[0]
+
+
+def read_band(path: Path, band: int | None = None) -> tuple[np.ndarray, str | None]:
+    """Read one band of an image file, for matching.
+
+    Args:
+        path: image file, see :func:`load_image`.
+        band: 0-based band index, or None. None is fine for a single-band file, and for
+            a colour image (RGB, or RGBA whose alpha is dropped), which is converted to
+            Rec. 601 luminance ``0.299 R + 0.587 G + 0.114 B``. Any other multi-band
+            file (2 bands, more than 4, several TIFF pages, non-RGB samples) needs one.
+
+    Returns:
+        ``(image, note)``: (H, W) float32 band scaled as in :func:`load_image`, and a
+        one-line note for the user when a conversion happened (luminance), else None.
+        The caller may append how to choose a band (e.g. its ``--left-band`` option).
+
+    Raises:
+        CadeError: every :func:`load_image` error; a band index out of range; a
+            multi-band, non-colour file without a band index.
+    """
+    image, is_colour = _load(path)
+    count = 1 if image.ndim == 2 else image.shape[2]
+    if band is not None:
+        return _select_band(image, band, count=count, path=path), None
+    if count == 1:
+        return image if image.ndim == 2 else image[:, :, 0], None
+    if is_colour:
+        return _luminance(image), _luminance_note(path, count)
+    raise CadeError(
+        f"{path} has {count} bands and is not an RGB colour image; choose one by its 0-based index (0-{count - 1})"
+    )
+
+
+def _select_band(image: np.ndarray, band: int, *, count: int, path: Path) -> np.ndarray:
+    """Band ``band`` of an (H, W) or (H, W, C) image, as a contiguous (H, W) array."""
+    if not 0 <= band < count:
+        noun = "band" if count == 1 else "bands"
+        raise CadeError(f"band {band} is out of range: {path} has {count} {noun} (0-{count - 1})")
+    return image if image.ndim == 2 else np.ascontiguousarray(image[:, :, band])
+
+
+def _luminance(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 601 luminance of (H, W, 3 or 4) float32 RGB(A); alpha ignored. (H, W) float32."""
+    weights = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
+    return np.tensordot(rgb[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
+
+
+def _luminance_note(path: Path, count: int) -> str:
+    layout = "RGB" if count == 3 else "RGBA, alpha ignored"
+    return f"{path} has {count} bands ({layout}); converted to luminance (0.299 R + 0.587 G + 0.114 B)"
+
+
+def _load(path: Path) -> tuple[np.ndarray, bool]:
+    """(float32 image as :func:`load_image` returns it, whether its bands are R, G, B(, A))."""
+    path = check_input_file(path, suffixes=SUPPORTED_IMAGE_SUFFIXES)
+    if path.suffix.lower() in TIFF_SUFFIXES:
+        image, is_colour = _load_tiff(path)
+    else:
+        image, is_colour = _load_with_cv2(path)
+    if image.size == 0:
+        raise CadeError(f"{path} holds an empty image (shape {image.shape}); re-export it")
+    return _to_float32(image, path), is_colour
+
+
+def _load_with_cv2(path: Path) -> tuple[np.ndarray, bool]:
+    """Decode a non-TIFF file; convert cv2's BGR(A) to RGB(A)."""
+    image = decode_with_cv2(path)
+    if image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        order = [2, 1, 0, 3][: image.shape[2]]
+        return image[:, :, order], True
+    return image, False
+
+
+def _load_tiff(path: Path) -> tuple[np.ndarray, bool]:
+    """Read a TIFF as (H, W) or (H, W, C), raw dtype, and whether it is RGB(A) colour."""
+    try:
+        with tifffile.TiffFile(path) as tif:
+            if not tif.series:
+                raise CadeError(f"{path} is a TIFF file with no images in it; re-export it")
+            first = tif.series[0]
+            data = first.asarray()
+            axes = first.axes
+            photometric = tif.pages[0].photometric
+            extra = [s.asarray() for s in tif.series[1:] if s.shape == first.shape and s.dtype == first.dtype]
+    except CadeError:
+        raise
+    except Exception as exc:  # tifffile raises many types on corrupt files; none may escape
+        raise CadeError(f"cannot read {path} as TIFF: {one_line_message(exc)}; the file is corrupt, re-export it") from exc
+    if photometric == tifffile.PHOTOMETRIC.PALETTE:
+        raise CadeError(f"{path} is an indexed-colour (palette) TIFF; convert it to greyscale or RGB first")
+    if data.size == 0:
+        return data, False
+    stacks = [_to_bands_last(d, axes, path) for d in [data, *extra]]
+    image = stacks[0] if len(stacks) == 1 else np.dstack(stacks)
+    squeezed_axes = "".join(a for a, n in zip(axes, data.shape) if n != 1 or a in "YX")
+    is_colour = (
+        not extra
+        and photometric == tifffile.PHOTOMETRIC.RGB
+        and squeezed_axes.replace("Y", "").replace("X", "") == "S"
+        and image.ndim == 3
+        and image.shape[2] in (3, 4)
+    )
+    return image, is_colour
+
+
+def _to_bands_last(data: np.ndarray, axes: str, path: Path) -> np.ndarray:
+    """Reorder a tifffile series to (H, W) or (H, W, C); every non-Y/X axis becomes bands.
+
+    Planar (``SYX``, ``CYX``), page stacks (``IYX``, ``QYX``, ``ZYX``...) and interleaved
+    (``YXS``) layouts all end as bands-last; several non-spatial axes are flattened in
+    file order.
+    """
+    if "Y" not in axes or "X" not in axes or len(axes) != data.ndim:
+        raise CadeError(f"{path} has an unsupported TIFF layout (axes {axes!r}); save it as one image per file")
+    others = [i for i, a in enumerate(axes) if a not in "YX"]
+    moved = np.transpose(data, (axes.index("Y"), axes.index("X"), *others))
+    height, width = moved.shape[:2]
+    bands = int(np.prod(moved.shape[2:], dtype=np.int64))
+    return moved.reshape(height, width) if bands == 1 else moved.reshape(height, width, bands)
+
+
+def _to_float32(image: np.ndarray, path: Path) -> np.ndarray:
+    """Integers scaled to [0, 1] by dtype range; float32/float64 kept as values."""
+    if image.dtype in _INTEGER_SCALE:
+        return image.astype(np.float32) / np.float32(_INTEGER_SCALE[image.dtype])
+    if image.dtype in _FLOAT_DTYPES:
+        return image.astype(np.float32)
+    raise CadeError(
+        f"{path} stores {image.dtype} samples; convert it to 8-bit, 16-bit or float32 (e.g. 16-bit PNG or float32 TIFF)"
+    )
+
+
+def one_line_message(exc: BaseException) -> str:
+    """An exception's message on one line (decoder messages often span several)."""
+    text = " ".join(str(exc).split())
+    return text or type(exc).__name__

@@ -1,0 +1,38 @@
+"""Stereo matchers behind one registry: ``MATCHERS[name](left, right, max_disp=...)``.
+
+Each matcher is a pipeline of stages (Pandora's split): cost volume
+(:mod:`~cade_cli.matching.cost`) -> aggregation (:mod:`~cade_cli.matching.sgm`) ->
+disparity and validation (:mod:`~cade_cli.matching.disparity`). All return a
+:class:`~cade_cli.matching.base.DisparityResult`: a dense float32 map plus a validity mask.
+"""
+
+from __future__ import annotations
+
+from cade_cli.errors import CadeError
+from cade_cli.matching.base import (
+    PREPROCESS_CHOICES,
+    DisparityRange,
+    DisparityResult,
+    Matcher,
+)
+from cade_cli.matching.classical import OpenCvSgbm, census_sgm, zncc_sgm
+
+MATCHERS: dict[str, Matcher] = {
+    matcher.name: matcher
+    for matcher in (
+        Matcher("census-sgm", "Census 7x7 Hamming cost + 8-path SGM, LR check (own implementation)", census_sgm, 7),
+        Matcher("zncc-sgm", "1 - ZNCC 5x5 cost + 8-path SGM, LR check (own implementation)", zncc_sgm, 5),
+        Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)", OpenCvSgbm(), 5),
+    )
+}
+
+
+def get_matcher(name: str) -> Matcher:
+    """The registered matcher called ``name``; raises :class:`CadeError` listing the choices."""
+    try:
+        return MATCHERS[name]
+    except KeyError:
+        raise CadeError(f"unknown method {name!r}; choose one of {', '.join(MATCHERS)}") from None
+
+
+__all__ = ["MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "get_matcher"]

@@ -1,0 +1,97 @@
+"""Classical matchers: own Census/ZNCC + SGM pipelines, and OpenCV's StereoSGBM."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import partial
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.cost import CostVolume, census_cost, zncc_cost
+from cade_cli.matching.disparity import (
+    fill_invalid_along_rows,
+    left_right_check,
+    right_view_cost,
+    winner_takes_all,
+)
+from cade_cli.matching.sgm import sgm_aggregate
+
+CostFunction = Callable[[np.ndarray, np.ndarray, DisparityRange], CostVolume]
+
+
+@dataclass(frozen=True)
+class SgmPipeline:
+    """cost -> 8-path SGM -> WTA + parabola -> left-right check -> row fill -> median.
+
+    Attributes:
+        cost: builds the (H, W, D) lower-is-better volume.
+        p1, p2: SGM penalties in the cost's units.
+        lr_tolerance: max |d_left - d_right| in px for a pixel to stay valid.
+        median: side of the median filter applied to the filled map (1 = off); it
+            removes isolated outliers that survive the left-right check.
+    """
+
+    cost: CostFunction
+    p1: float
+    p2: float
+    lr_tolerance: float = 1.0
+    median: int = 3
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
+        aggregated = sgm_aggregate(self.cost(left, right, disparity_range), p1=self.p1, p2=self.p2)
+        left_disparity = winner_takes_all(aggregated)
+        right_disparity = winner_takes_all(right_view_cost(aggregated))
+        valid = left_right_check(left_disparity, right_disparity, tolerance=self.lr_tolerance)
+        dense = fill_invalid_along_rows(left_disparity, valid)
+        if self.median > 1:
+            dense = cv2.medianBlur(dense, self.median)
+        return DisparityResult(dense, valid)
+
+
+census_sgm = SgmPipeline(cost=partial(census_cost, window=7), p1=0.15, p2=1.5)
+zncc_sgm = SgmPipeline(cost=partial(zncc_cost, window=5), p1=0.1, p2=1.0)
+
+
+@dataclass(frozen=True)
+class OpenCvSgbm:
+    """OpenCV StereoSGBM (Birchfield-Tomasi cost, 5 or 8 paths), the mono-modal reference.
+
+    Bands are stretched to uint8 over their own min..max. OpenCV needs a disparity count
+    divisible by 16, so it searches a slightly wider range; estimates outside the
+    requested range and OpenCV's own rejects are marked invalid, then filled like the
+    other matchers.
+    """
+
+    block_size: int = 5
+    uniqueness_ratio: int = 10
+    full_dp: bool = True
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
+        count = -(-disparity_range.count // 16) * 16
+        area = self.block_size * self.block_size
+        matcher = cv2.StereoSGBM_create(
+            minDisparity=disparity_range.minimum,
+            numDisparities=count,
+            blockSize=self.block_size,
+            P1=8 * area,
+            P2=32 * area,
+            disp12MaxDiff=1,
+            uniquenessRatio=self.uniqueness_ratio,
+            speckleWindowSize=100,
+            speckleRange=2,
+            preFilterCap=63,
+            mode=cv2.STEREO_SGBM_MODE_HH if self.full_dp else cv2.STEREO_SGBM_MODE_SGBM,
+        )
+        raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
+        valid = (raw >= disparity_range.minimum) & (raw <= disparity_range.maximum)
+        return DisparityResult(fill_invalid_along_rows(raw, valid), valid)
+
+
+def to_uint8(band: np.ndarray) -> np.ndarray:
+    """Stretch a float band over its own min..max to uint8 (constant bands become 0)."""
+    low, high = float(band.min()), float(band.max())
+    scale = 255.0 / (high - low) if high > low else 0.0
+    return np.clip(np.rint((band - low) * scale), 0, 255).astype(np.uint8)

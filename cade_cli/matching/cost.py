@@ -1,0 +1,117 @@
+"""Matching-cost stage: a cost volume from a pair of bands.
+
+A cost volume ``C`` has shape (H, W, D): ``C[y, x, k]`` is the cost of matching left
+pixel (y, x) with right pixel (y, x - d) for d = ``disparity_range.minimum + k``.
+Lower is better for every volume built here (Census: Hamming distance, ZNCC: 1 - ZNCC),
+and :class:`CostVolume` carries that flag so later stages read it instead of guessing.
+Entries whose right pixel falls outside the image get the volume's worst cost, so an
+out-of-view match never beats an in-view one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cade_cli.matching.base import DisparityRange
+
+
+@dataclass(frozen=True)
+class CostVolume:
+    """(H, W, D) float32 matching costs over ``disparity_range`` (see module docstring)."""
+
+    values: np.ndarray
+    disparity_range: DisparityRange
+    lower_is_better: bool = True
+
+
+def census_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
+    """Census signature of every pixel: bit k set where neighbour k is darker than the centre.
+
+    Args:
+        image: (H, W) float band.
+        window: odd window side, 3..7 (a 7x7 window gives 48 bits in a uint64).
+
+    Returns:
+        (H, W) uint64 signatures; borders are replicated.
+    """
+    if window % 2 == 0 or not 3 <= window <= 7:
+        raise ValueError(f"census window must be odd and in 3..7, got {window}")
+    radius = window // 2
+    height, width = image.shape
+    padded = np.pad(image.astype(np.float32, copy=False), radius, mode="edge")
+    signature = np.zeros((height, width), np.uint64)
+    bit = np.uint64(0)
+    for dy in range(window):
+        for dx in range(window):
+            if dy == radius and dx == radius:
+                continue
+            neighbour = padded[dy:dy + height, dx:dx + width]
+            signature |= (neighbour < image).astype(np.uint64) << bit
+            bit += np.uint64(1)
+    return signature
+
+
+def census_cost(
+    left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 7
+) -> CostVolume:
+    """Census cost volume: Hamming distance between census signatures, divided by the
+    number of bits so costs lie in [0, 1]. Out-of-view entries cost 1."""
+    left_signature = census_transform(left, window=window)
+    right_signature = census_transform(right, window=window)
+    bits = window * window - 1
+    height, width = left.shape
+    volume = np.ones((height, width, disparity_range.count), np.float32)
+    for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
+        left_cols, right_cols = overlap(width, d)
+        hamming = np.bitwise_count(left_signature[:, left_cols] ^ right_signature[:, right_cols])
+        volume[:, left_cols, k] = hamming * np.float32(1.0 / bits)
+    return CostVolume(volume, disparity_range)
+
+
+def zncc_cost(
+    left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 5
+) -> CostVolume:
+    """1 - ZNCC over a ``window`` x ``window`` box, in [0, 2] (0 = perfectly correlated).
+
+    Where either window is flat (standard deviation below 1e-4 of the band's range) the
+    correlation is undefined and the cost is 1, the value of uncorrelated windows.
+    Out-of-view entries cost 2.
+    """
+    box = (window, window)
+
+    def local_mean(x: np.ndarray) -> np.ndarray:
+        return cv2.boxFilter(x, cv2.CV_64F, box, normalize=True, borderType=cv2.BORDER_REPLICATE)
+
+    left64 = left.astype(np.float64) - float(left.mean())
+    right64 = right.astype(np.float64) - float(right.mean())
+    mean_left, mean_right = local_mean(left64), local_mean(right64)
+    std_left = np.sqrt(np.maximum(local_mean(left64 * left64) - mean_left**2, 0.0))
+    std_right = np.sqrt(np.maximum(local_mean(right64 * right64) - mean_right**2, 0.0))
+    flat_threshold = 1e-4 * max(float(np.ptp(left64)), float(np.ptp(right64)), 1e-12)
+
+    height, width = left.shape
+    volume = np.full((height, width, disparity_range.count), 2.0, np.float32)
+    for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
+        left_cols, right_cols = overlap(width, d)
+        shifted_right = np.zeros_like(right64)
+        shifted_right[:, left_cols] = right64[:, right_cols]
+        # The box windows of the shifted product must see the same pixels as the
+        # unshifted statistics, so shift the right statistics rather than recompute them.
+        cross = local_mean(left64 * shifted_right)[:, left_cols]
+        mu_l, mu_r = mean_left[:, left_cols], mean_right[:, right_cols]
+        sd_l, sd_r = std_left[:, left_cols], std_right[:, right_cols]
+        denominator = sd_l * sd_r
+        flat = (sd_l < flat_threshold) | (sd_r < flat_threshold)
+        zncc = (cross - mu_l * mu_r) / np.where(flat, 1.0, denominator)
+        volume[:, left_cols, k] = np.where(flat, 1.0, 1.0 - np.clip(zncc, -1.0, 1.0))
+    return CostVolume(volume, disparity_range)
+
+
+def overlap(width: int, disparity: int) -> tuple[slice, slice]:
+    """Columns where left x and right x - disparity both lie inside a row of ``width``."""
+    if disparity >= 0:
+        return slice(disparity, width), slice(0, width - disparity)
+    return slice(0, width + disparity), slice(-disparity, width)

@@ -1,0 +1,97 @@
+"""Disparity stage (winner-takes-all + sub-pixel) and validation (left-right check, fill)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cade_cli.matching.cost import CostVolume, overlap
+
+
+def winner_takes_all(cost: CostVolume, *, subpixel: bool = True) -> np.ndarray:
+    """Best disparity per pixel of the reference view of ``cost``.
+
+    With ``subpixel``, a parabola through the best cost and its two neighbours refines
+    the integer winner (offset clipped to +-0.5 px; none at the ends of the range).
+
+    Returns:
+        (H, W) float32 disparity in pixels.
+    """
+    values = cost.values if cost.lower_is_better else -cost.values
+    best = np.argmin(values, axis=2)
+    disparity = best.astype(np.float32) + np.float32(cost.disparity_range.minimum)
+    if not subpixel or values.shape[2] < 3:
+        return disparity
+    inner = np.clip(best, 1, values.shape[2] - 2)
+    before = np.take_along_axis(values, (inner - 1)[..., None], axis=2)[..., 0]
+    centre = np.take_along_axis(values, inner[..., None], axis=2)[..., 0]
+    after = np.take_along_axis(values, (inner + 1)[..., None], axis=2)[..., 0]
+    curvature = before - 2.0 * centre + after
+    usable = (best == inner) & (curvature > 0)
+    offset = np.where(usable, (before - after) / (2.0 * np.where(usable, curvature, 1.0)), 0.0)
+    return disparity + np.clip(offset, -0.5, 0.5).astype(np.float32)
+
+
+def right_view_cost(cost: CostVolume) -> CostVolume:
+    """The same costs indexed from the right view: ``R[y, xr, k] = C[y, xr + d_k, k]``.
+
+    Right pixels whose match would lie outside the left image get the worst cost.
+    """
+    values = cost.values
+    worst = values.max() if cost.lower_is_better else values.min()
+    right = np.full_like(values, worst)
+    width = values.shape[1]
+    for k, d in enumerate(range(cost.disparity_range.minimum, cost.disparity_range.maximum + 1)):
+        left_cols, right_cols = overlap(width, d)
+        right[:, right_cols, k] = values[:, left_cols, k]
+    return CostVolume(right, cost.disparity_range, cost.lower_is_better)
+
+
+def left_right_check(left_disparity: np.ndarray, right_disparity: np.ndarray, *, tolerance: float = 1.0) -> np.ndarray:
+    """Pixels whose left disparity is confirmed by the right view.
+
+    Left pixel (y, x) with disparity d is consistent when the right view's disparity at
+    (y, round(x - d)) is within ``tolerance`` px of d. Pixels whose match falls outside
+    the right image are inconsistent.
+
+    Returns:
+        (H, W) bool mask, True = consistent.
+    """
+    height, width = left_disparity.shape
+    columns = np.arange(width)[None, :]
+    matched = np.rint(columns - left_disparity).astype(np.int64)
+    inside = (matched >= 0) & (matched < width)
+    rows = np.arange(height)[:, None]
+    seen = right_disparity[rows, np.clip(matched, 0, width - 1)]
+    return inside & (np.abs(seen - left_disparity) <= tolerance)
+
+
+def fill_invalid_along_rows(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Dense copy of ``disparity`` with invalid pixels filled from the background side.
+
+    Each invalid pixel takes the smaller (farther, i.e. background) of the nearest valid
+    values to its left and right on the same row, or the only one that exists, as
+    MiddEval3 does before scoring. Rows without any valid pixel take the median of all
+    valid pixels; with no valid pixel at all the map is returned unchanged.
+
+    Args:
+        disparity: (H, W) float disparity; values at invalid pixels are ignored.
+        valid: (H, W) bool mask.
+
+    Returns:
+        (H, W) float32 array; ``disparity`` is not modified.
+    """
+    disparity = np.asarray(disparity, np.float32)
+    valid = np.asarray(valid, bool)
+    if valid.all() or not valid.any():
+        return disparity.copy()
+    height, width = disparity.shape
+    columns = np.broadcast_to(np.arange(width), (height, width))
+    last_valid = np.maximum.accumulate(np.where(valid, columns, -1), axis=1)
+    next_valid = np.minimum.accumulate(np.where(valid, columns, width)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(height)[:, None]
+    from_left = np.where(last_valid >= 0, disparity[rows, np.clip(last_valid, 0, width - 1)], np.inf)
+    from_right = np.where(next_valid < width, disparity[rows, np.clip(next_valid, 0, width - 1)], np.inf)
+    filled = np.where(valid, disparity, np.minimum(from_left, from_right))
+    empty_rows = ~valid.any(axis=1)
+    filled[empty_rows] = np.median(disparity[valid])
+    return filled.astype(np.float32)

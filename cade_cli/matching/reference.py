@@ -1,0 +1,95 @@
+"""Slow, obviously-correct versions of the fast kernels, for tests only.
+
+Plain Python loops straight from the definitions; use them on tiny images.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cade_cli.matching.base import DisparityRange
+
+SGM_DIRECTIONS: tuple[tuple[int, int], ...] = (
+    (0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1),
+)
+"""(dy, dx) steps of the eight SGM paths; a path reaches (y, x) from (y - dy, x - dx)."""
+
+
+def census_cost_reference(
+    left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 7
+) -> np.ndarray:
+    """Census Hamming cost / number of bits, by loops; out-of-view entries cost 1."""
+    height, width = left.shape
+    radius = window // 2
+
+    def signature(image: np.ndarray, y: int, x: int) -> list[bool]:
+        bits = []
+        for dy in range(-radius, radius + 1):
+            for dx in range(-radius, radius + 1):
+                if dy == 0 and dx == 0:
+                    continue
+                ny = min(max(y + dy, 0), height - 1)  # replicated border
+                nx = min(max(x + dx, 0), width - 1)
+                bits.append(bool(image[ny, nx] < image[y, x]))
+        return bits
+
+    n_bits = window * window - 1
+    volume = np.ones((height, width, disparity_range.count), np.float32)
+    for y in range(height):
+        for x in range(width):
+            left_bits = signature(left, y, x)
+            for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
+                if 0 <= x - d < width:
+                    right_bits = signature(right, y, x - d)
+                    volume[y, x, k] = sum(a != b for a, b in zip(left_bits, right_bits)) / n_bits
+    return volume
+
+
+def zncc_cost_reference(
+    left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 5
+) -> np.ndarray:
+    """1 - ZNCC over windows that lie fully inside both images, by loops.
+
+    Entries whose window touches a border are NaN here (the fast version pads them);
+    compare interior entries only.
+    """
+    height, width = left.shape
+    radius = window // 2
+    volume = np.full((height, width, disparity_range.count), np.nan)
+    for y in range(radius, height - radius):
+        for x in range(radius, width - radius):
+            a = left[y - radius:y + radius + 1, x - radius:x + radius + 1].astype(np.float64).ravel()
+            for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
+                xr = x - d
+                if radius <= xr < width - radius:
+                    b = right[y - radius:y + radius + 1, xr - radius:xr + radius + 1].astype(np.float64).ravel()
+                    a0, b0 = a - a.mean(), b - b.mean()
+                    volume[y, x, k] = 1.0 - (a0 @ b0) / np.sqrt((a0 @ a0) * (b0 @ b0))
+    return volume
+
+
+def sgm_aggregate_reference(cost: np.ndarray, *, p1: float, p2: float) -> np.ndarray:
+    """Sum over the eight :data:`SGM_DIRECTIONS` of the SGM path costs, by loops."""
+    height, width, count = cost.shape
+    total = np.zeros((height, width, count), np.float64)
+    for dy, dx in SGM_DIRECTIONS:
+        path = np.zeros((height, width, count), np.float64)
+        rows = range(height) if dy >= 0 else range(height - 1, -1, -1)
+        columns = range(width) if dx >= 0 else range(width - 1, -1, -1)
+        for y in rows:
+            for x in columns:
+                py, px = y - dy, x - dx
+                if not (0 <= py < height and 0 <= px < width):
+                    path[y, x] = cost[y, x]
+                    continue
+                previous = path[py, px]
+                smallest = previous.min()
+                for d in range(count):
+                    candidates = [previous[d], smallest + p2]
+                    if d > 0:
+                        candidates.append(previous[d - 1] + p1)
+                    if d < count - 1:
+                        candidates.append(previous[d + 1] + p1)
+                    path[y, x, d] = cost[y, x, d] + min(candidates) - smallest
+        total += path
+    return total

@@ -1,0 +1,223 @@
+"""The ``cade`` command end to end: outputs, notes, and one clean line per user error."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import tifffile
+
+from cade_cli import cli
+from cade_cli.disparity_io import read_disparity
+from cade_cli.imageio import load_image
+from synthetic import render_pair
+
+
+def run_cade(args: list[str], capsys) -> tuple[int, str, str]:
+    """Run the CLI in-process (fast) and return (exit code, stdout, stderr)."""
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return exit_info.value.code, captured.out, captured.err
+
+
+def write_png16(path: Path, band: np.ndarray) -> Path:
+    cv2.imwrite(str(path), np.rint(np.clip(band, 0, 1) * 65535).astype(np.uint16))
+    return path
+
+
+@pytest.fixture
+def pair_files(tmp_path, rng):
+    """A rendered pair on disk: left as 16-bit PNG, right through another 'filter'."""
+    pair = render_pair(rng, (72, 112), background=(5.0, 0.04), foreground=(13.0, 0.0))
+    left = write_png16(tmp_path / "left_bp400.png", pair.left)
+    right = write_png16(tmp_path / "right_bp900.png", 0.1 + 0.5 * pair.right**2.0)
+    return pair, left, right
+
+
+def test_disparity_writes_an_accurate_map_and_a_summary(pair_files, tmp_path, capsys):
+    pair, left, right = pair_files
+    out, vis = tmp_path / "disp.pfm", tmp_path / "disp_vis.png"
+    code, stdout, stderr = run_cade(["disparity", left, right, "-o", out, "--max-disp", 20, "--vis", vis], capsys)
+    assert code == 0, stderr
+    estimate = read_disparity(out)
+    assert np.abs(estimate - pair.disparity)[pair.reliable].mean() < 0.5
+    assert cv2.imread(str(vis)).shape == (72, 112, 3)
+    assert len(stdout.strip().splitlines()) == 1
+    assert "112x72" in stdout and "valid" in stdout
+
+
+@pytest.mark.parametrize("suffix", [".tif", ".png", ".npy"])
+def test_disparity_output_formats(pair_files, tmp_path, capsys, suffix):
+    pair, left, right = pair_files
+    out = tmp_path / f"disp{suffix}"
+    code, _, stderr = run_cade(["disparity", left, right, "-o", out, "--max-disp", 20], capsys)
+    assert code == 0, stderr
+    assert np.abs(read_disparity(out) - pair.disparity)[pair.reliable].mean() < 0.5
+
+
+def test_default_max_disp_is_announced(pair_files, tmp_path, capsys):
+    _, left, right = pair_files
+    code, _, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "d.pfm", "--method", "sgbm"], capsys)
+    assert code == 0
+    assert "--max-disp not given: searching up to 32 px" in stderr  # 112 / 4 = 28 -> 32
+
+
+def test_colour_input_is_converted_with_a_note(tmp_path, rng, capsys):
+    pair = render_pair(rng, (48, 80))
+    rgb = (np.stack([pair.left] * 3, axis=2) * 255).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "l.png"), rgb)
+    write_png16(tmp_path / "r.png", pair.right)
+    code, _, stderr = run_cade(["disparity", tmp_path / "l.png", tmp_path / "r.png", "-o", tmp_path / "d.npy",
+                                "--max-disp", 12], capsys)
+    assert code == 0
+    assert "luminance" in stderr and "--left-band" in stderr
+
+
+def test_band_selection_from_multiband_tiff(tmp_path, rng, capsys):
+    pair = render_pair(rng, (48, 80), background=(4.0, 0.0))
+    noise = rng.random((48, 80)).astype(np.float32)
+    tifffile.imwrite(tmp_path / "stack.tif", np.stack([noise, pair.left, noise]), photometric="minisblack")
+    tifffile.imwrite(tmp_path / "other.tif", np.stack([pair.right, noise]), photometric="minisblack")
+    out = tmp_path / "d.pfm"
+    code, _, stderr = run_cade(["disparity", tmp_path / "stack.tif", tmp_path / "other.tif", "-o", out,
+                                "--left-band", 1, "--right-band", 0, "--max-disp", 10], capsys)
+    assert code == 0, stderr
+    assert np.abs(read_disparity(out) - 4.0)[pair.reliable].mean() < 0.3
+
+
+def test_negative_min_disp(tmp_path, rng, capsys):
+    pair = render_pair(rng, (64, 96), background=(-5.0, 0.0), foreground=(4.0, 0.0))
+    left, right = write_png16(tmp_path / "l.png", pair.left), write_png16(tmp_path / "r.png", pair.right)
+    out = tmp_path / "d.tif"
+    code, _, stderr = run_cade(["disparity", left, right, "-o", out, "--min-disp", -8, "--max-disp", 8], capsys)
+    assert code == 0, stderr
+    assert np.abs(read_disparity(out) - pair.disparity)[pair.reliable].mean() < 0.5
+
+
+def test_register_writes_reference_registered_and_validity(pair_files, tmp_path, capsys):
+    pair, left, right = pair_files
+    out = tmp_path / "registered.tif"
+    code, stdout, stderr = run_cade(["register", right, left, "-o", out, "--max-disp", 20, "--fill", "none"], capsys)
+    assert code == 0, stderr
+    bands = load_image(out)
+    assert bands.shape == (72, 112, 3) and bands.dtype == np.float32
+    reference, registered, valid = bands[..., 0], bands[..., 1], bands[..., 2]
+    np.testing.assert_allclose(reference, load_image(left), atol=1e-6)
+    expected = 0.1 + 0.5 * pair.left**2.0  # the right 'filter' seen from the left view
+    trusted = pair.reliable & (valid == 1.0)
+    assert trusted.sum() > 0.9 * pair.reliable.sum()
+    assert np.abs(registered - expected)[trusted].mean() < 0.02
+    assert set(np.unique(valid)) <= {0.0, 1.0}
+    assert np.array_equal(np.isnan(registered), valid == 0.0)
+
+
+def test_register_with_a_given_disparity(pair_files, tmp_path, capsys):
+    pair, left, right = pair_files
+    disparity = tmp_path / "gt.pfm"
+    from cade_cli.disparity_io import write_disparity
+
+    write_disparity(disparity, pair.disparity)
+    out = tmp_path / "registered.tiff"
+    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", disparity], capsys)
+    assert code == 0, stderr
+    registered = load_image(out)[..., 1]
+    assert np.abs(registered - (0.1 + 0.5 * pair.left**2.0))[pair.reliable].mean() < 0.01
+
+
+# --- bad input: one line on stderr, non-zero exit, nothing written or overwritten ---
+
+def corrupt(path: Path) -> Path:
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + b"garbage" * 10)
+    return path
+
+
+BAD_INPUTS = {
+    "missing file": (lambda d, l, r: [d / "nope.png", r], "does not exist"),
+    "corrupt file": (lambda d, l, r: [corrupt(d / "bad.png"), r], "cannot decode"),
+    "unsupported input extension": (lambda d, l, r: [l.rename(d / "left.gif"), r], "unsupported extension"),
+    "different sizes": (lambda d, l, r: [l, write_png16(d / "small.png", np.zeros((70, 112)))], "differ in size"),
+    "smaller than window": (
+        lambda d, l, r: [write_png16(d / "a.png", np.zeros((4, 40))), write_png16(d / "b.png", np.zeros((4, 40)))],
+        "smaller than"),
+    "band out of range": (lambda d, l, r: [l, r, "--left-band", 3], "out of range"),
+    "max-disp zero": (lambda d, l, r: [l, r, "--max-disp", 0], "--max-disp"),
+    "max-disp too wide": (lambda d, l, r: [l, r, "--max-disp", 112], "does not fit"),
+    "unknown method": (lambda d, l, r: [l, r, "--method", "magic"], "unknown method"),
+    "unknown preprocess": (lambda d, l, r: [l, r, "--preprocess", "magic"], "unknown preprocess"),
+    "not a number": (lambda d, l, r: [l, r, "--max-disp", "ten"], "--max-disp"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_INPUTS)
+def test_bad_input_fails_cleanly(pair_files, tmp_path, capsys, case):
+    _, left, right = pair_files
+    make_args, message = BAD_INPUTS[case]
+    out = tmp_path / "disp.pfm"
+    out.write_bytes(b"previous result")
+    args = make_args(tmp_path, left, right)
+    extra = [] if "--max-disp" in map(str, args) else ["--max-disp", 20]
+    code, stdout, stderr = run_cade(["disparity", *args[:2], "-o", out, *args[2:], *extra], capsys)
+    assert code != 0
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("cade: error:") and message in stderr
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []  # no temp files
+
+
+@pytest.mark.parametrize(
+    "output, message",
+    [("missing_dir/disp.pfm", "does not exist"), ("disp.jpg", "unsupported extension"), ("left_bp400.png", "also an input")],
+)
+def test_bad_output_fails_before_any_work(pair_files, tmp_path, capsys, output, message):
+    _, left, right = pair_files
+    before = left.read_bytes()
+    code, _, stderr = run_cade(["disparity", left, right, "-o", tmp_path / output, "--max-disp", 20], capsys)
+    assert code != 0 and message in stderr and len(stderr.strip().splitlines()) == 1
+    assert left.read_bytes() == before
+    assert not (tmp_path / "missing_dir").exists()
+
+
+def test_png_output_refuses_disparities_from_256(tmp_path, rng, capsys):
+    # KITTI PNGs store d * 256 in uint16: 256 px and beyond cannot be written.
+    pair = render_pair(rng, (40, 400), background=(270.0, 0.0))
+    left, right = write_png16(tmp_path / "l.png", pair.left), write_png16(tmp_path / "r.png", pair.right)
+    out = tmp_path / "d.png"
+    code, _, stderr = run_cade(["disparity", left, right, "-o", out, "--min-disp", 260, "--max-disp", 280,
+                                "--method", "sgbm"], capsys)
+    assert code != 0 and "256" in stderr
+    assert not out.exists()
+
+
+def test_register_rejects_a_mismatched_disparity(pair_files, tmp_path, capsys):
+    _, left, right = pair_files
+    np.save(tmp_path / "wrong.npy", np.zeros((10, 10), np.float32))
+    out = tmp_path / "r.tif"
+    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", tmp_path / "wrong.npy"], capsys)
+    assert code != 0 and "does not match" in stderr and not out.exists()
+
+
+def test_real_process_has_no_traceback_and_help_stays_light(tmp_path):
+    """As a user runs it: a separate process, and --help without onnxruntime or torch."""
+    failed = subprocess.run([sys.executable, "-m", "cade_cli", "disparity", tmp_path / "a.png", tmp_path / "b.png",
+                             "-o", tmp_path / "d.pfm"], capture_output=True, text=True)
+    assert failed.returncode != 0
+    assert failed.stderr.strip().count("\n") == 0 and "Traceback" not in failed.stderr
+    probe = ("import sys; from cade_cli import cli\n"
+             "for args in (['--help'], ['--version'], ['disparity', '--help']):\n"
+             "    try: cli.main(args)\n"
+             "    except SystemExit as e: assert e.code == 0, e.code\n"
+             "print(sorted(m for m in ('torch', 'onnxruntime', 'cv2') if m in sys.modules))")
+    light = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    assert light.returncode == 0, light.stderr
+    assert light.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_method_names_in_help_match_the_registry():
+    from cade_cli.matching import MATCHERS
+
+    assert tuple(MATCHERS) == cli.METHOD_NAMES

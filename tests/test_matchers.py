@@ -1,0 +1,90 @@
+"""Every registered matcher recovers disparities we rendered ourselves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cade_cli.errors import CadeError
+from cade_cli.matching import MATCHERS, get_matcher
+from synthetic import render_pair
+
+SCENES = {
+    "constant": dict(background=(6.0, 0.0), foreground=None),
+    "piecewise-planar": dict(background=(5.0, 0.05), foreground=(14.0, 0.05)),
+    "both-signs": dict(background=(-4.0, 0.03), foreground=(6.0, -0.04)),
+}
+
+
+def search_range(disparity: np.ndarray) -> tuple[int, int]:
+    return min(0, int(np.floor(disparity.min())) - 2), int(np.ceil(disparity.max())) + 2
+
+
+@pytest.mark.parametrize("scene", SCENES)
+@pytest.mark.parametrize("preprocess", ["none", "cade"])
+@pytest.mark.parametrize("name", list(MATCHERS))
+def test_recovers_rendered_disparity(rng, name, preprocess, scene):
+    pair = render_pair(rng, (80, 120), **SCENES[scene])
+    low, high = search_range(pair.disparity)
+    result = MATCHERS[name](pair.left, pair.right, min_disp=low, max_disp=high, preprocess=preprocess)
+    assert result.disparity.shape == pair.left.shape and result.disparity.dtype == np.float32
+    assert np.isfinite(result.disparity).all()  # dense
+    error = np.abs(result.disparity - pair.disparity)[pair.reliable]
+    assert error.mean() < 0.5
+    assert result.valid[pair.reliable].mean() > 0.9
+
+
+@pytest.mark.parametrize("name", ["census-sgm", "zncc-sgm"])
+def test_cross_band_pair_with_cade(rng, name):
+    """A monotone, nonlinear change of gain and gamma between the views (two filters)."""
+    pair = render_pair(rng, (80, 120), **SCENES["piecewise-planar"])
+    other_band = 0.1 + 0.4 * pair.right**2.2
+    low, high = search_range(pair.disparity)
+    result = MATCHERS[name](pair.left, other_band, min_disp=low, max_disp=high, preprocess="cade")
+    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 0.5
+
+
+@pytest.mark.parametrize("name", list(MATCHERS))
+def test_identical_images_give_zero_disparity(rng, name):
+    # The integer winner is exactly 0 everywhere; the parabola may move it by < 0.5 px
+    # where the neighbouring costs are asymmetric, as they are on random texture.
+    band = rng.random((40, 60)).astype(np.float32)
+    result = MATCHERS[name](band, band, min_disp=-5, max_disp=5)
+    assert np.array_equal(np.rint(result.disparity), np.zeros((40, 60), np.float32))
+    assert result.valid[:, 16:-5].all()  # OpenCV rejects x < min_disp + 16 (its rounded range)
+
+
+def test_float64_input_agrees_with_float32(rng):
+    pair = render_pair(rng, (48, 80))
+    as32 = MATCHERS["census-sgm"](pair.left, pair.right, max_disp=12)
+    as64 = MATCHERS["census-sgm"](pair.left.astype(np.float64), pair.right.astype(np.float64), max_disp=12)
+    np.testing.assert_array_equal(as32.disparity, as64.disparity)
+
+
+def test_inputs_are_not_modified(rng):
+    pair = render_pair(rng, (48, 80))
+    left, right = pair.left.copy(), pair.right.copy()
+    MATCHERS["zncc-sgm"](left, right, max_disp=12, preprocess="cade")
+    assert np.array_equal(left, pair.left) and np.array_equal(right, pair.right)
+
+
+@pytest.mark.parametrize(
+    "left_shape, right_shape, kwargs, message",
+    [
+        ((20, 30), (20, 31), dict(max_disp=5), "differ in size"),
+        ((4, 30), (4, 30), dict(max_disp=5), "smaller than"),
+        ((20, 30), (20, 30), dict(max_disp=0), "must be > 0"),
+        ((20, 30), (20, 30), dict(max_disp=30), "does not fit"),
+        ((20, 30), (20, 30), dict(max_disp=5, min_disp=6), "below min"),
+        ((20, 30), (20, 30), dict(max_disp=5, preprocess="magic"), "unknown preprocess"),
+        ((20, 30, 3), (20, 30, 3), dict(max_disp=5), "one band"),
+    ],
+)
+def test_bad_requests_raise_cade_error(left_shape, right_shape, kwargs, message):
+    with pytest.raises(CadeError, match=message):
+        MATCHERS["census-sgm"](np.zeros(left_shape), np.zeros(right_shape), **kwargs)
+
+
+def test_unknown_matcher_lists_choices():
+    with pytest.raises(CadeError, match="census-sgm"):
+        get_matcher("nope")

@@ -1,0 +1,105 @@
+"""Fast kernels against their slow references, and the disparity/validation stages."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.cost import CostVolume, census_cost, zncc_cost
+from cade_cli.matching.disparity import (
+    fill_invalid_along_rows,
+    left_right_check,
+    right_view_cost,
+    winner_takes_all,
+)
+from cade_cli.matching.reference import census_cost_reference, sgm_aggregate_reference, zncc_cost_reference
+from cade_cli.matching.sgm import sgm_aggregate
+
+
+@pytest.mark.parametrize("window", [3, 5, 7])
+@pytest.mark.parametrize("limits", [(0, 4), (-3, 2)])
+def test_census_cost_matches_reference(rng, window, limits):
+    left = rng.random((9, 13)).astype(np.float32)
+    right = rng.random((9, 13)).astype(np.float32)
+    disparity_range = DisparityRange(*limits)
+    fast = census_cost(left, right, disparity_range, window=window).values
+    slow = census_cost_reference(left, right, disparity_range, window=window)
+    np.testing.assert_allclose(fast, slow, atol=1e-6)
+
+
+def test_zncc_cost_matches_reference_inside(rng):
+    left = rng.random((12, 20)).astype(np.float32)
+    right = rng.random((12, 20)).astype(np.float32)
+    disparity_range = DisparityRange(-2, 5)
+    fast = zncc_cost(left, right, disparity_range, window=5).values
+    slow = zncc_cost_reference(left, right, disparity_range, window=5)
+    inside = np.isfinite(slow)
+    assert inside.sum() > 200
+    np.testing.assert_allclose(fast[inside], slow[inside], atol=1e-4)
+
+
+def test_zncc_is_zero_for_an_affine_copy(rng):
+    left = rng.random((15, 30)).astype(np.float32)
+    right = 0.3 * left + 0.5  # same structure, different gain and offset
+    volume = zncc_cost(left, right, DisparityRange(0, 3), window=5).values
+    np.testing.assert_allclose(volume[:, :, 0], 0.0, atol=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(6, 7, 4), (5, 9, 1), (1, 6, 3), (7, 1, 5)])
+def test_sgm_matches_reference(rng, shape):
+    cost = rng.random(shape).astype(np.float32)
+    fast = sgm_aggregate(CostVolume(cost, DisparityRange(0, shape[2] - 1)), p1=0.2, p2=0.7).values
+    slow = sgm_aggregate_reference(cost, p1=0.2, p2=0.7)
+    np.testing.assert_allclose(fast, slow, rtol=1e-5, atol=1e-4)
+
+
+def test_sgm_rejects_p2_below_p1():
+    with pytest.raises(ValueError, match="p2"):
+        sgm_aggregate(CostVolume(np.zeros((3, 3, 3), np.float32), DisparityRange(0, 2)), p1=1.0, p2=0.5)
+
+
+def test_winner_takes_all_finds_a_parabola_vertex():
+    # Costs sampled from (d - 2.3)^2 on d = -1..5: the parabola fit is exact.
+    disparities = np.arange(-1, 6, dtype=np.float32)
+    values = ((disparities - 2.3) ** 2)[None, None, :].repeat(2, 0).repeat(3, 1)
+    estimate = winner_takes_all(CostVolume(values.astype(np.float32), DisparityRange(-1, 5)))
+    np.testing.assert_allclose(estimate, 2.3, atol=1e-5)
+
+
+def test_winner_takes_all_reads_the_higher_is_better_flag():
+    values = np.zeros((1, 1, 4), np.float32)
+    values[0, 0, 1] = 1.0
+    score = CostVolume(values, DisparityRange(0, 3), lower_is_better=False)
+    assert winner_takes_all(score, subpixel=False)[0, 0] == 1.0
+
+
+def test_right_view_cost_reindexes_columns(rng):
+    values = rng.random((2, 8, 3)).astype(np.float32)
+    right = right_view_cost(CostVolume(values, DisparityRange(1, 3))).values
+    # right pixel xr at disparity d pairs with left pixel xr + d
+    assert right[1, 2, 0] == values[1, 3, 0]
+    assert right[0, 4, 2] == values[0, 7, 2]
+    assert right[0, 5, 2] == values.max()  # left pixel 8 does not exist
+
+
+def test_left_right_check_flags_inconsistent_and_out_of_view_pixels():
+    left = np.full((1, 6), 2.0, np.float32)
+    right = np.full((1, 6), 2.0, np.float32)
+    right[0, 3] = 5.0  # left pixel 5 maps to right pixel 3, which disagrees
+    valid = left_right_check(left, right, tolerance=1.0)
+    assert valid.tolist() == [[False, False, True, True, True, False]]
+
+
+def test_fill_takes_the_background_side():
+    disparity = np.array([[np.nan, 3.0, np.nan, np.nan, 7.0, np.nan]], np.float32)
+    valid = np.isfinite(disparity)
+    filled = fill_invalid_along_rows(disparity, valid)
+    assert filled.tolist() == [[3.0, 3.0, 3.0, 3.0, 7.0, 7.0]]
+    assert np.isnan(disparity[0, 0])  # input untouched
+
+
+def test_fill_uses_global_median_for_empty_rows():
+    disparity = np.array([[1.0, 2.0, 9.0], [0.0, 0.0, 0.0]], np.float32)
+    valid = np.array([[True, True, True], [False, False, False]])
+    assert fill_invalid_along_rows(disparity, valid)[1].tolist() == [2.0, 2.0, 2.0]
