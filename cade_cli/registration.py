@@ -85,6 +85,14 @@ def register(
         raise CadeError(f"unknown fill {fill!r}; choose one of {', '.join(FILL_CHOICES)}")
     moving = np.asarray(moving, np.float32)
     reference = np.asarray(reference, np.float32)
+    for name, band in (("moving", moving), ("reference", reference)):
+        if band.ndim != 2:
+            raise CadeError(f"{name} image must be one band of shape (H, W), got shape {band.shape}; pick a band")
+    if moving.shape != reference.shape:
+        raise CadeError(
+            f"moving and reference images differ in size: {moving.shape[1]}x{moving.shape[0]} vs "
+            f"{reference.shape[1]}x{reference.shape[0]}; rectify or crop them to the same size"
+        )
     if disparity is None:
         result = estimate_disparity(
             reference, moving, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess

@@ -47,7 +47,7 @@ def color_agnostic(image: np.ndarray, *, window: int = 3) -> np.ndarray:
     image = np.asarray(image)
     if image.ndim != 2:
         raise CadeError(f"color_agnostic expects one band of shape (H, W), got shape {image.shape}; pick a band first")
-    if window < 3 or window % 2 == 0:
+    if not isinstance(window, (int, np.integer)) or isinstance(window, bool) or window < 3 or window % 2 == 0:
         raise CadeError(f"window must be an odd integer >= 3, got {window}")
     if min(image.shape) < window:
         raise CadeError(f"image {image.shape[1]}x{image.shape[0]} is smaller than the {window}x{window} window")
@@ -131,4 +131,5 @@ def synthesize_bands(rgb: np.ndarray, rng: np.random.Generator) -> dict[str, np.
         "BuG": np.maximum(np.float32(r[13]) * blue, np.float32(r[14]) * green),
         "GuR": np.maximum(np.float32(r[15]) * green, np.float32(r[16]) * red),
     }
-    return {name: bands[name].astype(np.float32, copy=False) for name in BAND_NAMES}
+    # float32 weighted means of saturated pixels can round to 1 + 1 ulp: keep [0, 1].
+    return {name: np.clip(bands[name], 0.0, 1.0).astype(np.float32, copy=False) for name in BAND_NAMES}

@@ -25,7 +25,8 @@ def test_census_cost_matches_reference(rng, window, limits):
     disparity_range = DisparityRange(*limits)
     fast = census_cost(left, right, disparity_range, window=window).values
     slow = census_cost_reference(left, right, disparity_range, window=window)
-    np.testing.assert_allclose(fast, slow, atol=1e-6)
+    assert fast.dtype == np.uint8
+    np.testing.assert_array_equal(fast, slow)
 
 
 def test_zncc_cost_matches_reference_inside(rng):
@@ -52,6 +53,26 @@ def test_sgm_matches_reference(rng, shape):
     fast = sgm_aggregate(CostVolume(cost, DisparityRange(0, shape[2] - 1)), p1=0.2, p2=0.7).values
     slow = sgm_aggregate_reference(cost, p1=0.2, p2=0.7)
     np.testing.assert_allclose(fast, slow, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("shape", [(6, 7, 4), (3, 5, 2)])
+def test_integer_sgm_is_exact(rng, shape):
+    cost = rng.integers(0, 49, size=shape).astype(np.uint8)
+    fast = sgm_aggregate(CostVolume(cost, DisparityRange(0, shape[2] - 1)), p1=7, p2=72).values
+    slow = sgm_aggregate_reference(cost.astype(np.float64), p1=7, p2=72)
+    assert fast.dtype == np.uint16
+    np.testing.assert_array_equal(fast, slow)
+
+
+def test_integer_sgm_widens_its_dtypes_for_large_costs(rng):
+    cost = rng.integers(0, 3000, size=(4, 5, 3)).astype(np.uint16)
+    fast = sgm_aggregate(CostVolume(cost, DisparityRange(0, 2)), p1=100, p2=5000).values
+    np.testing.assert_array_equal(fast, sgm_aggregate_reference(cost.astype(np.float64), p1=100, p2=5000))
+
+
+def test_integer_sgm_needs_whole_penalties():
+    with pytest.raises(ValueError, match="whole"):
+        sgm_aggregate(CostVolume(np.zeros((3, 3, 3), np.uint8), DisparityRange(0, 2)), p1=0.5, p2=2)
 
 
 def test_sgm_rejects_p2_below_p1():
@@ -103,3 +124,11 @@ def test_fill_uses_global_median_for_empty_rows():
     disparity = np.array([[1.0, 2.0, 9.0], [0.0, 0.0, 0.0]], np.float32)
     valid = np.array([[True, True, True], [False, False, False]])
     assert fill_invalid_along_rows(disparity, valid)[1].tolist() == [2.0, 2.0, 2.0]
+
+
+def test_winner_takes_all_on_unsigned_costs_refines_both_ways():
+    # Integer volumes must not wrap around when neighbouring costs are subtracted.
+    values = np.array([[[9, 2, 4, 9], [9, 4, 2, 9]]], np.uint16).transpose(0, 1, 2)
+    estimate = winner_takes_all(CostVolume(values, DisparityRange(0, 3)))
+    # vertex offset = (before - after) / (2 * (before - 2 centre + after)) = +-5 / 18
+    assert estimate[0, 0] == pytest.approx(1 + 5 / 18) and estimate[0, 1] == pytest.approx(2 - 5 / 18)

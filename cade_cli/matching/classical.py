@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange, DisparityResult
-from cade_cli.matching.cost import CostVolume, census_cost, zncc_cost
+from cade_cli.matching.cost import CostVolume, census_cost, quantize, zncc_cost
 from cade_cli.matching.disparity import (
     fill_invalid_along_rows,
     left_right_check,
@@ -28,7 +28,9 @@ class SgmPipeline:
 
     Attributes:
         cost: builds the (H, W, D) lower-is-better volume.
-        p1, p2: SGM penalties in the cost's units.
+        p1, p2: SGM penalties in the cost's units (after quantization, if any).
+        quantize_scale: when set, float costs are turned into uint8 levels
+            (``rint(cost * scale)``) so SGM runs in fast exact integer arithmetic.
         lr_tolerance: max |d_left - d_right| in px for a pixel to stay valid.
         median: side of the median filter applied to the filled map (1 = off); it
             removes isolated outliers that survive the left-right check.
@@ -37,11 +39,15 @@ class SgmPipeline:
     cost: CostFunction
     p1: float
     p2: float
+    quantize_scale: float | None = None
     lr_tolerance: float = 1.0
     median: int = 3
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
-        aggregated = sgm_aggregate(self.cost(left, right, disparity_range), p1=self.p1, p2=self.p2)
+        cost = self.cost(left, right, disparity_range)
+        if self.quantize_scale is not None:
+            cost = quantize(cost, scale=self.quantize_scale)
+        aggregated = sgm_aggregate(cost, p1=self.p1, p2=self.p2)
         left_disparity = winner_takes_all(aggregated)
         right_disparity = winner_takes_all(right_view_cost(aggregated))
         valid = left_right_check(left_disparity, right_disparity, tolerance=self.lr_tolerance)
@@ -51,8 +57,9 @@ class SgmPipeline:
         return DisparityResult(dense, valid)
 
 
-census_sgm = SgmPipeline(cost=partial(census_cost, window=7), p1=0.15, p2=1.5)
-zncc_sgm = SgmPipeline(cost=partial(zncc_cost, window=5), p1=0.1, p2=1.0)
+# Census costs are bit counts (0..48 for 7x7); ZNCC costs (0..2) are quantized x32.
+census_sgm = SgmPipeline(cost=partial(census_cost, window=7), p1=7, p2=72)
+zncc_sgm = SgmPipeline(cost=partial(zncc_cost, window=5), quantize_scale=32, p1=3, p2=32)
 
 
 @dataclass(frozen=True)

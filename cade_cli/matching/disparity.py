@@ -16,15 +16,19 @@ def winner_takes_all(cost: CostVolume, *, subpixel: bool = True) -> np.ndarray:
     Returns:
         (H, W) float32 disparity in pixels.
     """
-    values = cost.values if cost.lower_is_better else -cost.values
+    values = cost.values
+    if not cost.lower_is_better:
+        values = -values.astype(np.float32) if np.issubdtype(values.dtype, np.unsignedinteger) else -values
     best = np.argmin(values, axis=2)
     disparity = best.astype(np.float32) + np.float32(cost.disparity_range.minimum)
     if not subpixel or values.shape[2] < 3:
         return disparity
     inner = np.clip(best, 1, values.shape[2] - 2)
-    before = np.take_along_axis(values, (inner - 1)[..., None], axis=2)[..., 0]
-    centre = np.take_along_axis(values, inner[..., None], axis=2)[..., 0]
-    after = np.take_along_axis(values, (inner + 1)[..., None], axis=2)[..., 0]
+
+    def at(index: np.ndarray) -> np.ndarray:  # float, as integer costs would wrap when subtracted
+        return np.take_along_axis(values, index[..., None], axis=2)[..., 0].astype(np.float32)
+
+    before, centre, after = at(inner - 1), at(inner), at(inner + 1)
     curvature = before - 2.0 * centre + after
     usable = (best == inner) & (curvature > 0)
     offset = np.where(usable, (before - after) / (2.0 * np.where(usable, curvature, 1.0)), 0.0)

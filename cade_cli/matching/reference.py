@@ -18,7 +18,7 @@ SGM_DIRECTIONS: tuple[tuple[int, int], ...] = (
 def census_cost_reference(
     left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 7
 ) -> np.ndarray:
-    """Census Hamming cost / number of bits, by loops; out-of-view entries cost 1."""
+    """Census Hamming cost (bit count), by loops; out-of-view entries get the bit count."""
     height, width = left.shape
     radius = window // 2
 
@@ -34,14 +34,14 @@ def census_cost_reference(
         return bits
 
     n_bits = window * window - 1
-    volume = np.ones((height, width, disparity_range.count), np.float32)
+    volume = np.full((height, width, disparity_range.count), n_bits, np.int64)
     for y in range(height):
         for x in range(width):
             left_bits = signature(left, y, x)
             for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
                 if 0 <= x - d < width:
                     right_bits = signature(right, y, x - d)
-                    volume[y, x, k] = sum(a != b for a, b in zip(left_bits, right_bits)) / n_bits
+                    volume[y, x, k] = sum(a != b for a, b in zip(left_bits, right_bits))
     return volume
 
 
