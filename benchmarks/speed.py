@@ -43,7 +43,7 @@ BAD_THRESHOLD = 2.0
 
 # cade's census-sgm settings (cade_cli.matching.classical.census_sgm), used when they
 # cannot be read from the installed package; the report prints the values in force.
-CENSUS_SGM_DEFAULTS = {"window": 7, "p1": 0.15, "p2": 1.5, "lr_tolerance": 1.0, "median": 3}
+CENSUS_SGM_DEFAULTS = {"window": 7, "p1": 7.0, "p2": 72.0, "lr_tolerance": 1.0, "median": 3}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -183,7 +183,7 @@ def find_scenes(data_dir: Path, names: str) -> list[Path]:
 
 
 def census_sgm_settings() -> tuple[dict, str]:
-    """cade census-sgm's window, penalties (cost units: Hamming / bits), LR tolerance
+    """cade census-sgm's window, penalties (cost units: Hamming bit counts), LR tolerance
     and median size, read from the installed package when it exposes them."""
     settings = dict(CENSUS_SGM_DEFAULTS)
     try:
@@ -206,10 +206,8 @@ def census_sgm_settings() -> tuple[dict, str]:
 def pandora_pipeline_config(settings: dict, refinement: str, validation: str) -> dict:
     """Pandora pipeline mirroring cade's census-sgm.
 
-    cade's census cost is Hamming / (window^2 - 1) in [0, 1]; Pandora's is the raw
-    Hamming count, so the SGM penalties are scaled by the number of census bits.
+    Both census costs are raw Hamming bit counts, so the SGM penalties carry over as they are.
     """
-    bits = settings["window"] ** 2 - 1
     return {
         "pipeline": {
             "matching_cost": {"matching_cost_method": "census", "window_size": settings["window"], "subpix": 1},
@@ -217,8 +215,8 @@ def pandora_pipeline_config(settings: dict, refinement: str, validation: str) ->
                 "optimization_method": "sgm",  # libsgm plugin, 8 directions, C++ version
                 "penalty": {
                     "penalty_method": "sgm_penalty",
-                    "P1": round(settings["p1"] * bits, 6),
-                    "P2": round(settings["p2"] * bits, 6),
+                    "P1": settings["p1"],
+                    "P2": settings["p2"],
                     "p2_method": "constant",
                 },
             },

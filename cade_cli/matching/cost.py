@@ -68,11 +68,13 @@ def census_cost(
     right_signature = census_transform(right, window=window)
     bits = window * window - 1
     height, width = left.shape
-    volume = np.full((height, width, disparity_range.count), bits, np.uint8)
+    # Fill one contiguous (H, W) plane per disparity, then reorder to (H, W, D) once:
+    # far faster than writing every plane with a stride of D bytes.
+    planes = np.full((disparity_range.count, height, width), bits, np.uint8)
     for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
         left_cols, right_cols = overlap(width, d)
-        volume[:, left_cols, k] = np.bitwise_count(left_signature[:, left_cols] ^ right_signature[:, right_cols])
-    return CostVolume(volume, disparity_range)
+        planes[k][:, left_cols] = np.bitwise_count(left_signature[:, left_cols] ^ right_signature[:, right_cols])
+    return CostVolume(np.ascontiguousarray(planes.transpose(1, 2, 0)), disparity_range)
 
 
 def zncc_cost(

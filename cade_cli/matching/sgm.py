@@ -118,8 +118,6 @@ def _sweep(values: np.ndarray, p1, p2, *, total_dtype: np.dtype, horizontal: boo
         best[forward] += values[positions[0]]
         best[backward] += values[positions[1]]
         previous, best = best, previous
-        for group, position in ((forward, positions[0]), (backward, positions[1])):
-            row = total[position]
-            for path_costs in previous[group]:
-                np.add(row, path_costs, out=row, casting="unsafe")
+        total[positions[0]] += previous[forward].sum(axis=0, dtype=total_dtype)
+        total[positions[1]] += previous[backward].sum(axis=0, dtype=total_dtype)
     return total
