@@ -60,7 +60,12 @@ MinDispOption = Annotated[
     int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
 ]
 PreprocessOption = Annotated[
-    str, typer.Option("--preprocess", help="'cade' (color agnostic transform, for different bands) or 'none'.")
+    str,
+    typer.Option(
+        "--preprocess",
+        help="'cade' (color agnostic transform on both bands), 'none', or 'auto': the matcher's more "
+        "accurate choice on cross-spectral pairs (census-sgm, zncc-sgm: none; sgbm: cade).",
+    ),
 ]
 
 
@@ -76,13 +81,14 @@ def disparity(
     method: MethodOption = "census-sgm",
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
-    preprocess: PreprocessOption = "cade",
+    preprocess: PreprocessOption = "auto",
     vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
     left_band: Annotated[Optional[int], _band_option("left")] = None,
     right_band: Annotated[Optional[int], _band_option("right")] = None,
 ) -> None:
     """Dense disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.disparity_io import DISPARITY_SUFFIXES, write_disparity, write_visualization
+    from cade_cli.matching import get_matcher
     from cade_cli.stereo import estimate_disparity
 
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
@@ -95,6 +101,7 @@ def disparity(
         left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess
     )
     seconds = time.perf_counter() - started
+    preprocess = get_matcher(method).resolve_preprocess(preprocess)
     stored = result.disparity.copy()
     write_disparity(output, stored)
     if vis is not None:
@@ -118,7 +125,7 @@ def register(
     method: MethodOption = "census-sgm",
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
-    preprocess: PreprocessOption = "cade",
+    preprocess: PreprocessOption = "auto",
     fill: Annotated[
         str, typer.Option("--fill", help="Occluded pixels: 'row' (background along the row) or 'none' (NaN).")
     ] = "row",
@@ -147,7 +154,9 @@ def register(
             moving_image, reference_image, method=method, max_disp=max_disp, min_disp=min_disp,
             preprocess=preprocess, fill=fill,
         )
-        source = f"{method}+{preprocess} over [{min_disp}, {max_disp}]"
+        from cade_cli.matching import get_matcher
+
+        source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"
     seconds = time.perf_counter() - started
     write_registration(output, result)
     height, width = result.reference.shape

@@ -12,7 +12,7 @@ from cade_cli.matching import DisparityResult, get_matcher
 DEFAULT_METHOD = "census-sgm"
 """Most accurate classical matcher on the cross-spectral benchmark (docs/results.md)."""
 
-DEFAULT_PREPROCESS = "cade"
+DEFAULT_PREPROCESS = "auto"
 
 MEMORY_LIMIT_BYTES = 8 * 2**30
 """The SGM matchers hold about five float32 (H, W, D) volumes; refuse requests beyond this."""
@@ -44,7 +44,9 @@ def estimate_disparity(
             I_left(y, x) ~ I_right(y, x - d). ``max_disp=None`` uses
             :func:`default_max_disparity`. A negative ``min_disp`` serves pairs
             pre-registered to a plane.
-        preprocess: ``"cade"`` (color agnostic transform, for cross-spectral pairs) or ``"none"``.
+        preprocess: ``"cade"`` (color agnostic transform on both bands), ``"none"``, or
+            ``"auto"``: the matcher's more accurate choice on cross-spectral pairs
+            (:attr:`~cade_cli.matching.Matcher.best_preprocess`).
 
     Returns:
         :class:`~cade_cli.matching.DisparityResult`: dense (H, W) float32 disparity in

@@ -48,7 +48,7 @@ def test_disparity_writes_an_accurate_map_and_a_summary(pair_files, tmp_path, ca
     assert np.abs(estimate - pair.disparity)[pair.reliable].mean() < 0.5
     assert cv2.imread(str(vis)).shape == (72, 112, 3)
     assert len(stdout.strip().splitlines()) == 1
-    assert "112x72" in stdout and "valid" in stdout
+    assert "112x72" in stdout and "valid" in stdout and "census-sgm+none" in stdout  # auto resolved
 
 
 @pytest.mark.parametrize("suffix", [".tif", ".png", ".npy"])

@@ -88,3 +88,14 @@ def test_bad_requests_raise_cade_error(left_shape, right_shape, kwargs, message)
 def test_unknown_matcher_lists_choices():
     with pytest.raises(CadeError, match="census-sgm"):
         get_matcher("nope")
+
+
+@pytest.mark.parametrize("name, expected", [("census-sgm", "none"), ("zncc-sgm", "none"), ("sgbm", "cade")])
+def test_auto_preprocess_runs_the_matchers_choice(rng, name, expected):
+    pair = render_pair(rng, (48, 80))
+    other_band = 0.1 + 0.4 * pair.right**2.2
+    auto = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess="auto")
+    chosen = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess=expected)
+    other = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess={"none": "cade", "cade": "none"}[expected])
+    assert np.array_equal(auto.disparity, chosen.disparity)
+    assert not np.array_equal(auto.disparity, other.disparity)

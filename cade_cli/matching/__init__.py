@@ -20,9 +20,14 @@ from cade_cli.matching.classical import OpenCvSgbm, census_sgm, zncc_sgm
 MATCHERS: dict[str, Matcher] = {
     matcher.name: matcher
     for matcher in (
-        Matcher("census-sgm", "Census 7x7 Hamming cost + 8-path SGM, LR check (own implementation)", census_sgm, 7),
-        Matcher("zncc-sgm", "1 - ZNCC 5x5 cost + 8-path SGM, LR check (own implementation)", zncc_sgm, 5),
-        Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)", OpenCvSgbm(), 5),
+        # Census and ZNCC are already invariant to gain and offset: the CADE transform
+        # only adds noise for them; SGBM's absolute-difference cost needs it.
+        Matcher("census-sgm", "Census 7x7 Hamming cost + 8-path SGM, LR check (own implementation)",
+                census_sgm, 7, best_preprocess="none"),
+        Matcher("zncc-sgm", "1 - ZNCC 5x5 cost + 8-path SGM, LR check (own implementation)",
+                zncc_sgm, 5, best_preprocess="none"),
+        Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)",
+                OpenCvSgbm(), 5, best_preprocess="cade"),
     )
 }
 

@@ -10,8 +10,10 @@ import numpy as np
 from cade_cli.errors import CadeError
 from cade_cli.spectral import color_agnostic
 
-Preprocess = Literal["none", "cade"]
-PREPROCESS_CHOICES: tuple[str, ...] = ("none", "cade")
+Preprocess = Literal["auto", "none", "cade"]
+PREPROCESS_CHOICES: tuple[str, ...] = ("auto", "none", "cade")
+"""``cade``: color agnostic transform on both bands first; ``none``: bands as given;
+``auto``: the matcher's own choice (:attr:`Matcher.best_preprocess`)."""
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,15 @@ class Matcher:
     kernel: Kernel
     min_size: int = 3
     """Smallest image side the kernel can work with (its matching window)."""
+    best_preprocess: str = "cade"
+    """What ``preprocess="auto"`` means for this matcher: the more accurate of
+    ``none`` / ``cade`` on the cross-spectral benchmark (benchmarks/cross_spectral.py)."""
+
+    def resolve_preprocess(self, preprocess: str) -> str:
+        """``preprocess`` with ``"auto"`` replaced by this matcher's choice."""
+        if preprocess not in PREPROCESS_CHOICES:
+            raise CadeError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS_CHOICES)}")
+        return self.best_preprocess if preprocess == "auto" else preprocess
 
     def __call__(
         self,
@@ -82,22 +93,21 @@ class Matcher:
         *,
         max_disp: int,
         min_disp: int = 0,
-        preprocess: Preprocess = "none",
+        preprocess: Preprocess = "auto",
     ) -> DisparityResult:
         """Disparity of ``left`` against ``right``.
 
         Args:
             left, right: (H, W) float bands of the same shape (any intensity units).
             max_disp, min_disp: inclusive search range in pixels.
-            preprocess: ``"none"`` or ``"cade"`` (color agnostic transform on both bands).
+            preprocess: ``"cade"`` (color agnostic transform on both bands), ``"none"``,
+                or ``"auto"`` (:attr:`best_preprocess`).
         """
         left, right = check_pair(left, right, min_size=self.min_size)
         disparity_range = DisparityRange(int(min_disp), int(max_disp))
         disparity_range.check_for_width(left.shape[1])
-        if preprocess == "cade":
+        if self.resolve_preprocess(preprocess) == "cade":
             left, right = color_agnostic(left), color_agnostic(right)
-        elif preprocess != "none":
-            raise CadeError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS_CHOICES)}")
         return self.kernel(left, right, disparity_range)
 
 
