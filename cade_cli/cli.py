@@ -88,12 +88,15 @@ def disparity(
 ) -> None:
     """Dense disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.disparity_io import DISPARITY_SUFFIXES, write_disparity, write_visualization
+    from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
     from cade_cli.stereo import estimate_disparity
 
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
     if vis is not None:
-        _check_output(vis, suffixes=(".png",), inputs=(left, right, output))
+        _check_output(vis, suffixes=(".png",), inputs=(left, right))
+        if vis.resolve() == output.resolve():
+            raise CadeError(f"--vis {vis} is the same file as --output; give the visualisation another name")
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     max_disp = _resolve_max_disp(max_disp, left_image.shape[1])

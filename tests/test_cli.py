@@ -182,6 +182,13 @@ def test_bad_output_fails_before_any_work(pair_files, tmp_path, capsys, output, 
     assert not (tmp_path / "missing_dir").exists()
 
 
+def test_vis_must_not_replace_the_disparity_file(pair_files, tmp_path, capsys):
+    _, left, right = pair_files
+    out = tmp_path / "d.png"
+    code, _, stderr = run_cade(["disparity", left, right, "-o", out, "--vis", out, "--max-disp", 20], capsys)
+    assert code != 0 and "same file" in stderr and not out.exists()
+
+
 def test_png_output_refuses_disparities_from_256(tmp_path, rng, capsys):
     # KITTI PNGs store d * 256 in uint16: 256 px and beyond cannot be written.
     pair = render_pair(rng, (40, 400), background=(270.0, 0.0))
