@@ -166,6 +166,69 @@ def register(
     print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")
 
 
+@app.command()
+def benchmark(
+    dataset: Annotated[str, typer.Option("--dataset", "-d", help="middlebury05, middlebury06, middlebury14, flyingthings3d, kitti2012, kitti2015 or folder.")],
+    data_dir: Annotated[Path, typer.Option("--data-dir", help="Folder holding the dataset in its official layout.")],
+    methods: Annotated[str, typer.Option("--methods", help="Comma-separated matchers.")] = ",".join(METHOD_NAMES),
+    protocol: Annotated[str, typer.Option("--protocol", help="Comma-separated: cs (six band pairs), rgb (median of R/G/B), native (grey pair).")] = "cs,rgb",
+    preprocess: Annotated[str, typer.Option("--preprocess", help="Comma-separated: none, cade, auto.")] = "none,cade",
+    scenes: Annotated[Optional[str], typer.Option("--scenes", help="Comma-separated scene names (default: all).")] = None,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes.")] = 1,
+    json_file: Annotated[Optional[Path], typer.Option("--json", help="Write every number as JSON.")] = None,
+    report: Annotated[Optional[Path], typer.Option("--report", help="Write a Markdown report.")] = None,
+    save_dir: Annotated[Optional[Path], typer.Option("--save-dir", help="Write each disparity (PFM) and error map (PNG) here.")] = None,
+) -> None:
+    """Score matchers on a dataset with the paper's protocols (CS, RGB) and print a Table-1-style summary."""
+    import shlex
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    from cade_cli.atomic import atomic_output
+    from cade_cli.benchmark import run_benchmark
+    from cade_cli.benchmark_report import markdown, pixel_sets, table, title
+    from cade_cli.errors import CadeError
+
+    for path, suffix in ((json_file, ".json"), (report, ".md")):
+        if path is not None:
+            _check_output(path, suffixes=(suffix,), inputs=())
+    if save_dir is not None and not save_dir.parent.is_dir():
+        raise CadeError(f"parent of --save-dir {save_dir} does not exist; create it first")
+    split = lambda text: [item.strip() for item in text.split(",") if item.strip()]  # noqa: E731
+    console = Console(stderr=True)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True) as progress:
+        bar = progress.add_task(f"benchmark {dataset}", total=None)
+
+        def advance(unit) -> None:
+            progress.update(bar, advance=1, description=f"{unit.scene} {unit.protocol} {unit.method}+{unit.preprocess}")
+
+        run = run_benchmark(
+            dataset=dataset, data_dir=data_dir, methods=split(methods), protocols=split(protocol),
+            preprocess=split(preprocess), scenes=split(scenes) if scenes else None, jobs=jobs,
+            save_dir=save_dir, on_unit_done=advance,
+            on_start=lambda total: progress.update(bar, total=total),
+        )
+    out = Console()
+    for pixels in pixel_sets(run):
+        header, rows = table(run, pixels)
+        rich_table = Table(title=title(run, pixels), title_justify="left")
+        for i, name in enumerate(header):
+            rich_table.add_column(name, justify="left" if i == 0 else "right", no_wrap=i == 0)
+        for row in rows:
+            rich_table.add_row(*row)
+        out.print(rich_table)
+    command = shlex.join(["cade", *sys.argv[1:]]) if sys.argv[1:2] == ["benchmark"] else None
+    if json_file is not None:
+        with atomic_output(json_file) as temporary:
+            temporary.write_text(run.to_json())
+    if report is not None:
+        with atomic_output(report) as temporary:
+            temporary.write_text(markdown(run, command=command))
+
+
 def _read_pair(
     left: Path, right: Path, left_band: int | None, right_band: int | None,
     names: tuple[str, str] = ("--left-band", "--right-band"),

@@ -1,0 +1,82 @@
+"""Tables of a :class:`~cade_cli.benchmark.BenchmarkRun`, shaped like the paper's Table 1.
+
+Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol, one table per
+pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask).
+The same rows feed the terminal table and the Markdown report.
+"""
+
+from __future__ import annotations
+
+from cade_cli.benchmark import BenchmarkRun
+
+COLUMNS: tuple[tuple[str, str], ...] = (("epe", "EPE"), ("bad3", "BMP3"), ("bad5", "BMP5"))
+PIXEL_SETS: tuple[str, ...] = ("all", "nonocc")
+
+
+def pixel_sets(run: BenchmarkRun) -> list[str]:
+    """Pixel sets that have scores in ``run``, in a fixed order."""
+    present = {key.rsplit("_", 1)[-1] for record in run.records for key in record.scores}
+    return [name for name in PIXEL_SETS if name in present]
+
+
+def table(run: BenchmarkRun, pixels: str) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) for one pixel set; cells are formatted numbers."""
+    protocols = run.config["protocols"]
+    header = ["method"] + [f"{protocol.upper()} {label}" for protocol in protocols for _, label in COLUMNS]
+    header.append("s / pair")
+    summary = run.summary()
+    rows = []
+    for method in run.config["methods"]:
+        for preprocess in run.config["preprocess"]:
+            cells, seconds = [f"{method} + {preprocess}"], []
+            for protocol in protocols:
+                row = next((r for r in summary if (r["method"], r["preprocess"], r["protocol"])
+                            == (method, preprocess, protocol)), None)
+                for metric, _ in COLUMNS:
+                    value = None if row is None else row["scores"].get(f"{metric}_{pixels}")
+                    cells.append("—" if value is None else (f"{value:.2f}" if metric == "epe" else f"{value:.1f}"))
+                if row is not None:
+                    seconds.append(row["seconds_per_pair"])
+            cells.append(f"{sum(seconds) / len(seconds):.2f}" if seconds else "—")
+            rows.append(cells)
+    return header, rows
+
+
+def title(run: BenchmarkRun, pixels: str) -> str:
+    """Table heading naming the dataset, resolution, scene count and pixel set."""
+    resolutions = sorted({record.resolution for record in run.records}) or ["?"]
+    scenes = len(run.config["scenes"])
+    what = "all pixels with ground truth" if pixels == "all" else "non-occluded pixels with ground truth"
+    return (f"{run.config['dataset']} ({', '.join(resolutions)}, {scenes} scenes), {what}: "
+            "EPE px, BMP3/BMP5 % of pixels off by > 3/5 px")
+
+
+def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
+    """The full Markdown report: the tables, then per-scene, per-task numbers."""
+    lines = ["# cade benchmark", ""]
+    if command:
+        lines += [f"Command: `{command}`", ""]
+    for pixels in pixel_sets(run):
+        header, rows = table(run, pixels)
+        lines += [f"## {title(run, pixels)}", "", _md_row(header), _md_row(["---"] + ["---:"] * (len(header) - 1))]
+        lines += [_md_row(row) for row in rows] + [""]
+    lines += ["## Per scene and task", "",
+              _md_row(["scene", "protocol", "task", "method", "EPE all", "BMP3 all", "EPE nonocc", "BMP3 nonocc",
+                       "invalid %", "s"]),
+              _md_row(["---"] * 4 + ["---:"] * 6)]
+    for r in run.records:
+        s = r.scores
+        lines.append(_md_row([
+            r.scene, r.protocol, r.task, f"{r.method} + {r.preprocess}",
+            *(_fmt(s.get(key)) for key in ("epe_all", "bad3_all", "epe_nonocc", "bad3_nonocc", "invalid")),
+            f"{r.seconds:.2f}",
+        ]))
+    return "\n".join(lines) + "\n"
+
+
+def _fmt(value: float | None) -> str:
+    return "—" if value is None else f"{value:.2f}"
+
+
+def _md_row(cells: list[str]) -> str:
+    return "| " + " | ".join(cells) + " |"

@@ -1,0 +1,207 @@
+"""The paper's evaluation protocols (METHOD.md section 5): which bands are matched.
+
+A protocol turns one RGB stereo pair into matching tasks on single bands:
+
+* ``cs`` (cross-spectral): six tasks R>G, R>B, G>R, G>B, B>R, B>G (left band > right
+  band), each scored on its own.
+* ``rgb`` (mono-modal): R>R, G>G, B>B; their per-pixel median is the one prediction
+  that is scored ("RGB-median"), the three per-channel maps are not.
+* ``native``: the dataset's own pair, both views converted to grey (Rec. 601
+  luminance 0.299 R + 0.587 G + 0.114 B), one task, scored.
+
+Channel indices are 0, 1, 2 = R, G, B of (H, W, 3) images in R, G, B order
+(:func:`cade_cli.imageio.load_image`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from cade_cli.errors import CadeError
+from cade_cli.imageio import LUMINANCE_WEIGHTS
+from cade_cli.matching.base import DisparityResult
+
+CHANNEL_NAMES: tuple[str, ...] = ("R", "G", "B")
+"""Letter of each channel index of an RGB image."""
+
+MEDIAN_NAME = "RGB-median"
+"""Name of the combined, scored result of the ``rgb`` protocol."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """One matching task: which band of the left and of the right image to match.
+
+    Attributes:
+        name: e.g. ``"R>G"`` (left band > right band) or ``"grey"``.
+        left_channel, right_channel: channel index 0..2 (R, G, B); None for grey tasks.
+        grey: True when both views are converted to Rec. 601 luminance instead.
+    """
+
+    name: str
+    left_channel: int | None
+    right_channel: int | None
+    grey: bool = False
+
+    def bands(self, left_rgb: np.ndarray, right_rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The (H, W) float32 left and right bands this task matches (new contiguous arrays)."""
+        if self.grey:
+            return luminance(left_rgb), luminance(right_rgb)
+        return (
+            np.ascontiguousarray(left_rgb[:, :, self.left_channel], dtype=np.float32),
+            np.ascontiguousarray(right_rgb[:, :, self.right_channel], dtype=np.float32),
+        )
+
+
+def _band_task(left: int, right: int) -> Task:
+    return Task(f"{CHANNEL_NAMES[left]}>{CHANNEL_NAMES[right]}", left, right)
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """A named list of tasks and how their results become scored predictions.
+
+    Attributes:
+        combine: ``None``: every task's map is scored on its own; ``"median"``: the
+            per-pixel median of all task maps is the single scored prediction.
+    """
+
+    name: str
+    summary: str
+    tasks: tuple[Task, ...]
+    combine: str | None = None
+
+
+PROTOCOLS: dict[str, Protocol] = {
+    protocol.name: protocol
+    for protocol in (
+        Protocol(
+            "cs",
+            "cross-spectral: six tasks R>G, R>B, G>R, G>B, B>R, B>G, each scored",
+            tuple(_band_task(left, right) for left in range(3) for right in range(3) if left != right),
+        ),
+        Protocol(
+            "rgb",
+            "mono-modal: R>R, G>G, B>B; their per-pixel median is scored",
+            tuple(_band_task(channel, channel) for channel in range(3)),
+            combine="median",
+        ),
+        Protocol(
+            "native",
+            "the dataset's own pair in grey (Rec. 601 luminance), one task",
+            (Task("grey", None, None, grey=True),),
+        ),
+    )
+}
+
+
+def get_protocol(name: str) -> Protocol:
+    """The protocol called ``name``; raises :class:`CadeError` listing the choices."""
+    try:
+        return PROTOCOLS[name]
+    except KeyError:
+        raise CadeError(f"unknown protocol {name!r}; choose one of {', '.join(PROTOCOLS)}") from None
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 601 luminance ``0.299 R + 0.587 G + 0.114 B`` of (H, W, 3) RGB; (H, W) float32."""
+    weights = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
+    return np.tensordot(np.asarray(rgb, np.float32)[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
+
+
+def median_combine(disparities: list[np.ndarray], valids: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel median of several dense disparity maps, and its validity.
+
+    Args:
+        disparities: N (H, W) float maps in pixels (dense, as matchers return them:
+            the median is taken over all N values, filled ones included).
+        valids: N (H, W) bool masks.
+
+    Returns:
+        ((H, W) float32 median, (H, W) bool): a pixel is valid when a strict majority of
+        the maps are valid there (2 of 3) and the median is finite.
+    """
+    median = np.median(np.stack([np.asarray(d, np.float32) for d in disparities]), axis=0).astype(np.float32)
+    votes = np.stack([np.asarray(v, bool) for v in valids]).sum(axis=0)
+    return median, (2 * votes > len(valids)) & np.isfinite(median)
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    """Output of one task of a protocol (or of the ``rgb`` median).
+
+    Attributes:
+        name: task name (``"R>G"``, ``"grey"``) or ``"RGB-median"``.
+        disparity: (H, W) float32 left-view disparity in pixels.
+        valid: (H, W) bool validity of ``disparity``.
+        seconds: wall time to produce this map; for ``RGB-median`` the three matcher
+            runs plus the median, so summing over all results double-counts ``rgb``.
+        scored: True for the predictions the protocol scores (every ``cs`` task, the
+            ``native`` task, only ``RGB-median`` for ``rgb``).
+    """
+
+    name: str
+    disparity: np.ndarray
+    valid: np.ndarray
+    seconds: float
+    scored: bool
+
+
+MatcherFn = Callable[[np.ndarray, np.ndarray], DisparityResult]
+
+
+def _check_rgb_pair(left_rgb: np.ndarray, right_rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    left_rgb, right_rgb = np.asarray(left_rgb), np.asarray(right_rgb)
+    for side, image in (("left", left_rgb), ("right", right_rgb)):
+        if image.ndim != 3 or image.shape[2] != 3:
+            raise CadeError(
+                f"{side} image must be RGB of shape (H, W, 3), got shape {image.shape}; "
+                f"protocols split colour images into bands"
+            )
+    if left_rgb.shape != right_rgb.shape:
+        raise CadeError(f"left and right images differ in shape: {left_rgb.shape} vs {right_rgb.shape}")
+    return left_rgb, right_rgb
+
+
+def run_protocol(
+    protocol_name: str, matcher_fn: MatcherFn, left_rgb: np.ndarray, right_rgb: np.ndarray
+) -> list[TaskResult]:
+    """Run every task of a protocol on one RGB stereo pair.
+
+    Args:
+        protocol_name: a key of :data:`PROTOCOLS`.
+        matcher_fn: ``matcher_fn(left_band, right_band) -> DisparityResult`` on (H, W)
+            float32 bands, e.g. ``functools.partial(MATCHERS[name], max_disp=64)``.
+        left_rgb, right_rgb: (H, W, 3) images in R, G, B order, same shape.
+
+    Returns:
+        One :class:`TaskResult` per task, in the protocol's order; for a ``median``
+        protocol (``rgb``) followed by ``RGB-median``, the only scored one.
+    """
+    protocol = get_protocol(protocol_name)
+    left_rgb, right_rgb = _check_rgb_pair(left_rgb, right_rgb)
+    scored_alone = protocol.combine is None
+    results = []
+    for task in protocol.tasks:
+        left_band, right_band = task.bands(left_rgb, right_rgb)
+        start = time.perf_counter()
+        output = matcher_fn(left_band, right_band)
+        seconds = time.perf_counter() - start
+        if np.shape(output.disparity) != left_band.shape or np.shape(output.valid) != left_band.shape:
+            raise CadeError(
+                f"task {task.name}: matcher returned disparity {np.shape(output.disparity)} and valid "
+                f"{np.shape(output.valid)} for bands of shape {left_band.shape}"
+            )
+        results.append(TaskResult(task.name, output.disparity, output.valid, seconds, scored_alone))
+    if protocol.combine == "median":
+        start = time.perf_counter()
+        median, valid = median_combine([r.disparity for r in results], [r.valid for r in results])
+        seconds = sum(r.seconds for r in results) + time.perf_counter() - start
+        results.append(TaskResult(MEDIAN_NAME, median, valid, seconds, scored=True))
+    elif protocol.combine is not None:
+        raise CadeError(f"protocol {protocol.name!r} has unknown combine {protocol.combine!r}")
+    return results

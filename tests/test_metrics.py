@@ -1,0 +1,157 @@
+"""Metrics against values computed by hand on tiny maps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cade_cli.errors import CadeError
+from cade_cli.metrics import (
+    BAD_THRESHOLDS,
+    METRIC_NAMES,
+    bad_pixel_rate,
+    densify,
+    end_point_error,
+    score,
+)
+
+NAN = np.nan
+
+# 2x3 example. |pred - gt| = [[0, 2, 0.5], [-, 4, 0]]: the NaN GT pixel is never scored.
+PRED = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], np.float32)
+GT = np.array([[1.0, 4.0, 3.5], [NAN, 1.0, 6.0]], np.float32)
+ALL = np.ones((2, 3), bool)
+
+
+def test_end_point_error_by_hand():
+    # 5 scored pixels: (0 + 2 + 0.5 + 4 + 0) / 5 = 1.3
+    assert end_point_error(PRED, GT, ALL) == pytest.approx(1.3)
+    # without the error-4 pixel: (0 + 2 + 0.5 + 0) / 4 = 0.625
+    mask = ALL.copy()
+    mask[1, 1] = False
+    assert end_point_error(PRED, GT, mask) == pytest.approx(0.625)
+
+
+@pytest.mark.parametrize(
+    ("threshold", "expected"),
+    [
+        (0.0, 60.0),   # 2, 0.5, 4 > 0 -> 3/5
+        (0.5, 40.0),   # 0.5 is not > 0.5 -> 2, 4 -> 2/5
+        (1.0, 40.0),   # 2, 4
+        (2.0, 20.0),   # 2 is not > 2 -> only 4
+        (3.0, 20.0),
+        (4.0, 0.0),    # 4 is not > 4
+        (5.0, 0.0),
+    ],
+)
+def test_bad_pixel_rate_by_hand_and_strict(threshold, expected):
+    assert bad_pixel_rate(PRED, GT, ALL, threshold=threshold) == pytest.approx(expected)
+
+
+def test_nan_and_inf_gt_are_excluded():
+    gt = np.array([[1.0, NAN, np.inf]], np.float32)
+    pred = np.array([[2.0, 100.0, 100.0]], np.float32)
+    valid = np.ones((1, 3), bool)
+    assert end_point_error(pred, gt, valid) == pytest.approx(1.0)
+    assert bad_pixel_rate(pred, gt, valid, threshold=3.0) == 0.0
+
+
+def test_no_scored_pixel_gives_nan():
+    assert np.isnan(end_point_error(PRED, GT, np.zeros((2, 3), bool)))
+    assert np.isnan(bad_pixel_rate(PRED, GT, np.zeros((2, 3), bool), threshold=3.0))
+    all_nan = np.full((2, 3), NAN, np.float32)
+    assert np.isnan(end_point_error(PRED, all_nan, ALL))
+
+
+def test_float32_and_float64_agree():
+    assert end_point_error(PRED.astype(np.float64), GT.astype(np.float64), ALL) == pytest.approx(
+        end_point_error(PRED, GT, ALL), abs=1e-6
+    )
+
+
+def test_bad_inputs_raise_with_shapes():
+    with pytest.raises(CadeError, match=r"gt has shape \(2, 3\) but pred has shape \(2, 2\)"):
+        end_point_error(PRED[:, :2], GT, ALL)
+    with pytest.raises(CadeError, match="bool"):
+        end_point_error(PRED, GT, ALL.astype(np.uint8) * 255)
+    with pytest.raises(CadeError, match="densify"):
+        end_point_error(np.where(ALL, NAN, 0.0), GT, ALL)
+    with pytest.raises(CadeError, match="threshold"):
+        bad_pixel_rate(PRED, GT, ALL, threshold=-1.0)
+
+
+def test_densify_fills_from_background_side_and_reports_fraction():
+    pred = np.array([[NAN, 3.0, NAN, NAN, 7.0, NAN]], np.float32)
+    valid = np.array([[False, True, False, False, True, False]])
+    before = pred.copy()
+    dense, invalid = densify(pred, valid)
+    np.testing.assert_array_equal(dense, [[3, 3, 3, 3, 7, 7]])
+    assert dense.dtype == np.float32
+    assert invalid == pytest.approx(4 / 6)
+    np.testing.assert_array_equal(pred, before)  # caller's array untouched (NaN == NaN here)
+
+
+def test_densify_treats_non_finite_as_invalid():
+    pred = np.array([[9.0, NAN, 2.0], [1.0, 1.0, np.inf]], np.float32)
+    dense, invalid = densify(pred, np.ones((2, 3), bool))
+    np.testing.assert_array_equal(dense, [[9, 2, 2], [1, 1, 1]])
+    assert invalid == pytest.approx(2 / 6)
+
+
+def test_densify_with_nothing_valid_gives_zeros():
+    dense, invalid = densify(np.full((2, 3), NAN), np.zeros((2, 3), bool))
+    np.testing.assert_array_equal(dense, np.zeros((2, 3)))
+    assert invalid == 1.0
+
+
+def test_score_keys_depend_on_nonocc():
+    plain = score(PRED, GT)
+    assert list(plain) == [name for name in METRIC_NAMES if "nonocc" not in name]
+    assert list(plain) == ["epe_all", "bad1_all", "bad2_all", "bad3_all", "bad5_all", "invalid"]
+    with_nonocc = score(PRED, GT, nonocc=ALL)
+    assert list(with_nonocc) == list(METRIC_NAMES)
+    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS)) + 1
+
+
+def test_score_values_by_hand():
+    nonocc = ALL.copy()
+    nonocc[1, 1] = False  # the error-4 pixel is "occluded"
+    result = score(PRED, GT, nonocc=nonocc)
+    assert result["epe_all"] == pytest.approx(1.3)
+    assert result["bad1_all"] == pytest.approx(40.0)
+    assert result["bad2_all"] == pytest.approx(20.0)
+    assert result["bad5_all"] == 0.0
+    assert result["epe_nonocc"] == pytest.approx(0.625)
+    assert result["bad1_nonocc"] == pytest.approx(25.0)
+    assert result["bad3_nonocc"] == 0.0
+    assert result["invalid"] == 0.0
+
+
+def test_score_densifies_invalid_predictions():
+    # middle pixel rejected: filled with min(1, 3) = 1, which is the GT -> no error
+    pred = np.array([[1.0, 99.0, 3.0]], np.float32)
+    gt = np.array([[1.0, 1.0, 3.0]], np.float32)
+    result = score(pred, gt, pred_valid=np.array([[True, False, True]]))
+    assert result["epe_all"] == 0.0
+    assert result["invalid"] == pytest.approx(100 / 3)
+    # unfilled, the 99 would count
+    assert score(pred, gt)["epe_all"] == pytest.approx(98 / 3)
+
+
+def test_score_clips_only_when_asked():
+    pred = np.array([[-2.0, 10.0]], np.float32)
+    gt = np.array([[0.0, 8.0]], np.float32)
+    before = pred.copy()
+    assert score(pred, gt, max_disp=8)["epe_all"] == pytest.approx(2.0)
+    assert score(pred, gt, max_disp=8, clip=True)["epe_all"] == 0.0
+    np.testing.assert_array_equal(pred, before)
+    with pytest.raises(CadeError, match="max_disp"):
+        score(pred, gt, clip=True)
+
+
+def test_identical_prediction_scores_zero(rng):
+    gt = rng.uniform(0, 40, (12, 17)).astype(np.float32)
+    gt[rng.random(gt.shape) < 0.2] = NAN
+    pred = np.nan_to_num(gt, nan=5.0)
+    result = score(pred, gt, nonocc=rng.random(gt.shape) < 0.7)
+    assert all(value == 0.0 for value in result.values())
