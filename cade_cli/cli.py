@@ -229,6 +229,61 @@ def benchmark(
             temporary.write_text(markdown(run, command=command))
 
 
+datasets_app = typer.Typer(
+    help="List the benchmark datasets and download them from their official hosts.",
+    no_args_is_help=True,
+    rich_markup_mode=None,
+)
+app.add_typer(datasets_app, name="datasets")
+
+
+@datasets_app.command("list")
+def datasets_list() -> None:
+    """Each dataset: what a download holds, its approximate size and where it comes from."""
+    from cade_cli.download import SOURCES
+
+    width = max(len(name) for name in SOURCES) + 2
+    for source in SOURCES.values():
+        sizes = ", ".join(f"{key} {size}" if key else size for key, size in source.sizes.items())
+        print(f"{source.name:<{width}}{source.contents} [{sizes}]")
+        print(f"{'':<{width}}{source.source}")
+    print("download with: cade datasets download NAME --to DIR (Middlebury: --resolution Q|H|F); read with --data-dir DIR")
+
+
+@datasets_app.command("download")
+def datasets_download(
+    name: Annotated[str, typer.Argument(help="middlebury05, middlebury06, middlebury14, kitti2012 or kitti2015.", show_default=False)],
+    to: Annotated[Path, typer.Option("--to", help="Data folder; the dataset lands in its usual subfolder, read with --data-dir DIR.")],
+    resolution: Annotated[
+        Optional[str],
+        typer.Option("--resolution", help="Middlebury only: Q, H or F (default Q; 2005/2006: Q = ThirdSize).", show_default=False),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Download and unpack again even if the files are in place.")] = False,
+) -> None:
+    """Download dataset NAME into DIR (resuming an interrupted download) and check its files."""
+    from contextlib import nullcontext
+
+    from rich.console import Console
+
+    from cade_cli.download import download_dataset, download_progress, get_source
+
+    resolution = resolution.upper() if resolution else None
+    get_source(name).archives(resolution)  # refuse a bad request before any output
+    console = Console(stderr=True)
+    progress = download_progress(console) if console.is_terminal else None  # no bars in logs
+    with progress if progress is not None else nullcontext():
+        report = download_dataset(name, to, resolution=resolution, force=force, progress=progress)
+    at = f" ({report.resolution})" if report.resolution else ""
+    if report.already_present:
+        print(f"{name}{at}: already present in {report.folder}; use --data-dir {to}")
+    else:
+        print(
+            f"{name}{at}: {len(report.downloaded)} archive(s) downloaded ({report.bytes_downloaded / 1e6:.1f} MB), "
+            f"{len(report.extracted)} unpacked, {len(report.present)} already present, in {report.folder}; "
+            f"use --data-dir {to}"
+        )
+
+
 def _read_pair(
     left: Path, right: Path, left_band: int | None, right_band: int | None,
     names: tuple[str, str] = ("--left-band", "--right-band"),

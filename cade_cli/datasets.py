@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.disparity_io import DISPARITY_SUFFIXES, read_disparity
-from cade_cli.errors import CadeError
+from cade_cli.errors import CadeError, lookup
 from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES, decode_with_cv2, load_image
 
 LR_CONSISTENCY_TOLERANCE = 1.0
@@ -423,7 +423,4 @@ def get_dataset(name: str) -> DatasetReader:
     Raises:
         CadeError: unknown name; the message lists the choices.
     """
-    try:
-        return DATASETS[name]
-    except KeyError:
-        raise CadeError(f"unknown dataset {name!r}; choose one of {', '.join(DATASETS)}") from None
+    return lookup(DATASETS, name, kind="dataset")

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from cade_cli.errors import CadeError
+from cade_cli.errors import CadeError, lookup
 from cade_cli.imageio import LUMINANCE_WEIGHTS
 from cade_cli.matching.base import DisparityResult
 
@@ -101,10 +101,7 @@ PROTOCOLS: dict[str, Protocol] = {
 
 def get_protocol(name: str) -> Protocol:
     """The protocol called ``name``; raises :class:`CadeError` listing the choices."""
-    try:
-        return PROTOCOLS[name]
-    except KeyError:
-        raise CadeError(f"unknown protocol {name!r}; choose one of {', '.join(PROTOCOLS)}") from None
+    return lookup(PROTOCOLS, name, kind="protocol")
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ disparity and validation (:mod:`~cade_cli.matching.disparity`). All return a
 
 from __future__ import annotations
 
-from cade_cli.errors import CadeError
+from cade_cli.errors import lookup
 from cade_cli.matching.base import (
     PREPROCESS_CHOICES,
     DisparityRange,
@@ -34,10 +34,7 @@ MATCHERS: dict[str, Matcher] = {
 
 def get_matcher(name: str) -> Matcher:
     """The registered matcher called ``name``; raises :class:`CadeError` listing the choices."""
-    try:
-        return MATCHERS[name]
-    except KeyError:
-        raise CadeError(f"unknown method {name!r}; choose one of {', '.join(MATCHERS)}") from None
+    return lookup(MATCHERS, name, kind="method")
 
 
 __all__ = ["MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "get_matcher"]
