@@ -121,7 +121,7 @@ def read_band(path: Path, band: int | None = None) -> tuple[np.ndarray, str | No
     if count == 1:
         return image if image.ndim == 2 else image[:, :, 0], None
     if is_colour:
-        return _luminance(image), _luminance_note(path, count)
+        return luminance(image), _luminance_note(path, count)
     raise CadeError(
         f"{path} has {count} bands and is not an RGB colour image; choose one by its 0-based index (0-{count - 1})"
     )
@@ -135,10 +135,10 @@ def _select_band(image: np.ndarray, band: int, *, count: int, path: Path) -> np.
     return image if image.ndim == 2 else np.ascontiguousarray(image[:, :, band])
 
 
-def _luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 601 luminance of (H, W, 3 or 4) float32 RGB(A); alpha ignored. (H, W) float32."""
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """Rec. 601 luminance ``0.299 R + 0.587 G + 0.114 B`` of (H, W, 3+) RGB(A); (H, W) float32."""
     weights = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
-    return np.tensordot(rgb[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
+    return np.tensordot(np.asarray(rgb, np.float32)[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
 
 
 def _luminance_note(path: Path, count: int) -> str:

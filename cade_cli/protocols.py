@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 
 from cade_cli.errors import CadeError, lookup
-from cade_cli.imageio import LUMINANCE_WEIGHTS
+from cade_cli.imageio import luminance
 from cade_cli.matching.base import DisparityResult
 
 CHANNEL_NAMES: tuple[str, ...] = ("R", "G", "B")
@@ -102,12 +102,6 @@ PROTOCOLS: dict[str, Protocol] = {
 def get_protocol(name: str) -> Protocol:
     """The protocol called ``name``; raises :class:`CadeError` listing the choices."""
     return lookup(PROTOCOLS, name, kind="protocol")
-
-
-def luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 601 luminance ``0.299 R + 0.587 G + 0.114 B`` of (H, W, 3) RGB; (H, W) float32."""
-    weights = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
-    return np.tensordot(np.asarray(rgb, np.float32)[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
 
 
 def median_combine(disparities: list[np.ndarray], valids: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
