@@ -16,7 +16,6 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 
 from cade_cli.datasets import get_dataset
-from cade_cli.errors import CadeError
 from cade_cli.matching import get_matcher
 from cade_cli.metrics import METRIC_NAMES, score
 from cade_cli.protocols import get_protocol, run_protocol
@@ -116,12 +115,9 @@ def run_benchmark(
     for protocol in protocols:
         get_protocol(protocol)
     reader = get_dataset(dataset)
-    scene_names = list(reader.scene_names(Path(data_dir)))
     if scenes:
-        unknown = sorted(set(scenes) - set(scene_names))
-        if unknown:
-            raise CadeError(f"unknown scene(s) {', '.join(unknown)} in {dataset}; available: {', '.join(scene_names)}")
-        scene_names = [name for name in scene_names if name in set(scenes)]
+        reader(Path(data_dir), scenes=scenes)  # checks the names; loads nothing
+    scene_names = [name for name in reader.scene_names(Path(data_dir)) if not scenes or name in set(scenes)]
     units = [
         Unit(dataset, str(data_dir), scene, protocol, method, pre)
         for scene in scene_names for protocol in protocols for method in methods for pre in preprocess
