@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 SAMPLE := samples/middlebury2005-art
 OUT := out
 
-.PHONY: demo test bench-speed clean
+.PHONY: demo test bench-speed bench-memory train clean
 
 $(BIN)/cade: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,20 @@ bench-speed:
 	$(PYTHON) -m venv $(VENV)-bench
 	$(VENV)-bench/bin/python -m pip install --quiet -e . -r benchmarks/requirements-speed.txt
 	$(VENV)-bench/bin/python benchmarks/speed.py --data-dir ../shared/data/middlebury2014/trainingQ --markdown docs/speed.md
+
+# Peak memory of `cade disparity --method cade` on a generated 3000x2000 (6 MP) pair.
+bench-memory: $(BIN)/cade
+	$(BIN)/python benchmarks/memory.py --width 3000 --height 2000 --max-disp 200
+
+# Train the CADE network on generated data (torch only here, CPU build pinned) and export
+# it to models/; the run resumes from $(RUN)/last.pt when it exists. See models/README.md.
+RUN ?= runs/cade-v1
+STEPS ?= 6000
+train: $(BIN)/cade
+	$(BIN)/python -m pip install --quiet -e '.[train,test]'
+	$(BIN)/python -m cade_cli.train fit --out $(RUN) --textures ../shared/data/textures \
+		--data-dir ../shared/data --steps $(STEPS) --seed 0 --device cpu --threads 2 --workers 1
+	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v1.onnx
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -8,7 +8,9 @@ and bad-2 on non-occluded pixels (``mask0nocc.png == 255`` and finite GT), per m
 and per scene.
 
 Methods:
-    census-sgm, zncc-sgm, sgbm   ``cade_cli.matching.MATCHERS[name]`` (dense output).
+    census-sgm, zncc-sgm, sgbm   ``cade_cli.matching.MATCHERS[name]`` on the raw bands (dense output).
+    cade                         the CADE network (onnxruntime), color agnostic transform included
+                                 in the timed section.
     pandora-census-sgm           Pandora 1.9 + libsgm plugin, configured like cade's
                                  census-sgm (see :func:`pandora_pipeline_config`), its
                                  invalid pixels filled and median-filtered by the same
@@ -37,7 +39,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ALL_METHODS = ("census-sgm", "zncc-sgm", "sgbm", "pandora-census-sgm")
+ALL_METHODS = ("census-sgm", "zncc-sgm", "sgbm", "cade", "pandora-census-sgm")
 PANDORA = "pandora-census-sgm"
 BAD_THRESHOLD = 2.0
 
@@ -329,7 +331,8 @@ def make_runner(name: str, args: argparse.Namespace, notes: list[str]):
 
     def prepare(scene: Scene):
         def run():
-            result = matcher(scene.left, scene.right, min_disp=0, max_disp=scene.ndisp - 1, preprocess="none")
+            result = matcher(scene.left, scene.right, min_disp=0, max_disp=scene.ndisp - 1,
+                             preprocess="none" if matcher.accepts_raw else "cade")
             return result.disparity, result.valid
 
         return run
@@ -429,13 +432,15 @@ def build_report(rows: list[Row], args, threads_line: str, notes: list[str], pan
             "method rows average the per-scene values"
         ),
         "",
-        "| method | s / pair | ns / (px·disp) | EPE nonocc (px) | bad-2 nonocc (%) | valid (%) |",
-        "|---|---:|---:|---:|---:|---:|",
+        "| method | s / pair | s / MP | ns / (px·disp) | EPE nonocc (px) | bad-2 nonocc (%) | valid (%) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
     ]
     for method in methods:
         own = [r for r in rows if r.method == method]
         lines.append(
-            f"| {method} | {mean(r.mean_seconds for r in own):.3f} | {mean(r.ns_per_pixel_disparity for r in own):.2f} "
+            f"| {method} | {mean(r.mean_seconds for r in own):.3f} "
+            f"| {mean(r.mean_seconds / (r.height * r.width / 1e6) for r in own):.3f} "
+            f"| {mean(r.ns_per_pixel_disparity for r in own):.2f} "
             f"| {mean(r.epe for r in own):.3f} | {mean(r.bad for r in own):.2f} | {mean(r.valid for r in own):.1f} |"
         )
     lines += [

@@ -102,7 +102,8 @@ def run_benchmark(
         data_dir: where that dataset lies (its official layout).
         methods: names from :data:`cade_cli.matching.MATCHERS`.
         protocols: names from :data:`cade_cli.protocols.PROTOCOLS` (``cs``, ``rgb``, ``native``).
-        preprocess: values of the matchers' ``preprocess`` (``none``, ``cade``, ``auto``).
+        preprocess: values of the matchers' ``preprocess`` (``none``, ``cade``, ``auto``);
+            ``none`` is skipped for matchers that only take color-agnostic bands.
         scenes: restrict to these scene names (default: all).
         jobs: worker processes (1 = run in this process).
         save_dir: when given, each scored disparity (PFM) and a colourised error map
@@ -121,6 +122,7 @@ def run_benchmark(
     units = [
         Unit(dataset, str(data_dir), scene, protocol, method, pre)
         for scene in scene_names for protocol in protocols for method in methods for pre in preprocess
+        if pre != "none" or get_matcher(method).accepts_raw  # the CADE network has no raw-band mode
     ]
     config = {
         "dataset": dataset, "data_dir": str(data_dir), "scenes": scene_names, "methods": list(methods),

@@ -17,7 +17,7 @@ import typer
 
 from cade_cli import __version__
 
-METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm")
+METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade")
 """Registered matchers, listed here so that --help needs no heavy import (a test keeps
 this in step with :data:`cade_cli.matching.MATCHERS`)."""
 

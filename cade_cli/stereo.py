@@ -15,7 +15,8 @@ DEFAULT_METHOD = "census-sgm"
 DEFAULT_PREPROCESS = "auto"
 
 MEMORY_LIMIT_BYTES = 8 * 2**30
-"""The SGM matchers hold about five float32 (H, W, D) volumes; refuse requests beyond this."""
+"""Requests whose cost volumes (:attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel
+and disparity) would exceed this are refused."""
 
 
 def default_max_disparity(width: int) -> int:
@@ -58,7 +59,7 @@ def estimate_disparity(
         raise CadeError(f"left image must be one band of shape (H, W), got shape {left.shape}; pick a band")
     if max_disp is None:
         max_disp = default_max_disparity(left.shape[1])
-    volume_bytes = 5 * 4 * left.size * (max_disp - min_disp + 1)
+    volume_bytes = matcher.volume_bytes * left.size * (max_disp - min_disp + 1)
     if volume_bytes > MEMORY_LIMIT_BYTES:
         raise CadeError(
             f"a {left.shape[1]}x{left.shape[0]} pair over {max_disp - min_disp + 1} disparities needs about "

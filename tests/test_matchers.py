@@ -20,9 +20,18 @@ def search_range(disparity: np.ndarray) -> tuple[int, int]:
     return min(0, int(np.floor(disparity.min())) - 2), int(np.ceil(disparity.max())) + 2
 
 
+# Every matcher with every preprocessing it accepts (the CADE network takes CADE bands only).
+MATCHER_PREPROCESS = [(name, preprocess) for name, matcher in MATCHERS.items() for preprocess in ("none", "cade")
+                      if preprocess == "cade" or matcher.accepts_raw]
+
+
+# The network's sub-pixel precision is coarser than a parabola fit on an SGM cost
+# (models/README.md), so it is held to 1 px mean error here, the others to 0.5 px.
+MEAN_ERROR_BOUND = {"cade": 1.0}
+
+
 @pytest.mark.parametrize("scene", SCENES)
-@pytest.mark.parametrize("preprocess", ["none", "cade"])
-@pytest.mark.parametrize("name", list(MATCHERS))
+@pytest.mark.parametrize("name, preprocess", MATCHER_PREPROCESS)
 def test_recovers_rendered_disparity(rng, name, preprocess, scene):
     pair = render_pair(rng, (80, 120), **SCENES[scene])
     low, high = search_range(pair.disparity)
@@ -30,7 +39,7 @@ def test_recovers_rendered_disparity(rng, name, preprocess, scene):
     assert result.disparity.shape == pair.left.shape and result.disparity.dtype == np.float32
     assert np.isfinite(result.disparity).all()  # dense
     error = np.abs(result.disparity - pair.disparity)[pair.reliable]
-    assert error.mean() < 0.5
+    assert error.mean() < MEAN_ERROR_BOUND.get(name, 0.5)
     assert result.valid[pair.reliable].mean() > 0.9
 
 
@@ -44,7 +53,7 @@ def test_cross_band_pair_with_cade(rng, name):
     assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 0.5
 
 
-@pytest.mark.parametrize("name", list(MATCHERS))
+@pytest.mark.parametrize("name", [name for name in MATCHERS if name != "cade"])
 def test_identical_images_give_zero_disparity(rng, name):
     # The integer winner is exactly 0 everywhere; the parabola may move it by < 0.5 px
     # where the neighbouring costs are asymmetric, as they are on random texture.
@@ -52,6 +61,14 @@ def test_identical_images_give_zero_disparity(rng, name):
     result = MATCHERS[name](band, band, min_disp=-5, max_disp=5)
     assert np.array_equal(np.rint(result.disparity), np.zeros((40, 60), np.float32))
     assert result.valid[:, 16:-5].all()  # OpenCV rejects x < min_disp + 16 (its rounded range)
+
+
+def test_network_on_identical_images_stays_near_zero(rng):
+    # Pixel-scale white noise is unlike anything the network was trained on (textures
+    # there are at least a few pixels across), so it is held to a looser standard.
+    band = rng.random((40, 60)).astype(np.float32)
+    error = np.abs(MATCHERS["cade"](band, band, min_disp=-5, max_disp=5).disparity)
+    assert np.median(error) < 0.5 and (error < 1).mean() > 0.85
 
 
 def test_float64_input_agrees_with_float32(rng):

@@ -16,6 +16,7 @@ from cade_cli.matching.base import (
     Matcher,
 )
 from cade_cli.matching.classical import OpenCvSgbm, census_sgm, zncc_sgm
+from cade_cli.matching.learned import CadeNetwork
 
 MATCHERS: dict[str, Matcher] = {
     matcher.name: matcher
@@ -28,6 +29,10 @@ MATCHERS: dict[str, Matcher] = {
                 zncc_sgm, 5, best_preprocess="none"),
         Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)",
                 OpenCvSgbm(), 5, best_preprocess="cade"),
+        # The network was trained on color-agnostic bands only; memory is bounded by
+        # strips and a pyramid, not by the range.
+        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v1)",
+                CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, volume_bytes=0),
     )
 }
 

@@ -79,12 +79,21 @@ class Matcher:
     best_preprocess: str = "cade"
     """What ``preprocess="auto"`` means for this matcher: the more accurate of
     ``none`` / ``cade`` on the cross-spectral benchmark (benchmarks/cross_spectral.py)."""
+    accepts_raw: bool = True
+    """False for matchers that only work on color-agnostic bands (the CADE network)."""
+    volume_bytes: int = 20
+    """Bytes the kernel holds per pixel and searched disparity (0: memory does not grow
+    with the range); :func:`cade_cli.stereo.estimate_disparity` refuses requests beyond
+    its limit."""
 
     def resolve_preprocess(self, preprocess: str) -> str:
         """``preprocess`` with ``"auto"`` replaced by this matcher's choice."""
         if preprocess not in PREPROCESS_CHOICES:
             raise CadeError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS_CHOICES)}")
-        return self.best_preprocess if preprocess == "auto" else preprocess
+        resolved = self.best_preprocess if preprocess == "auto" else preprocess
+        if resolved == "none" and not self.accepts_raw:
+            raise CadeError(f"method {self.name} works on color-agnostic bands only; use --preprocess cade or auto")
+        return resolved
 
     def __call__(
         self,

@@ -1,0 +1,233 @@
+"""The learned CADE matcher: the shipped ONNX network run with onnxruntime.
+
+The network (trained by :mod:`cade_cli.train`, never imported here) takes two
+color-agnostic bands whose sides are multiples of its divisor and searches disparities
+0 .. ``max_disp`` - 1 of its card. Around it this module:
+
+* pre-shifts the right band by the requested minimum disparity, so any range
+  [min, max] (negative minimum included) becomes [0, max - min];
+* when that span exceeds what the network searches, runs on a downscaled pair
+  (factor 2, 4, ...) and upsamples, rescaling disparity;
+* pads to the divisor (replicating the border) and crops back;
+* splits tall images into overlapping horizontal strips, so memory stays bounded
+  (disparity is horizontal: a strip holds everything its rows need);
+* marks as invalid the pixels whose disparity distribution is wide (uncertainty
+  above :data:`MAX_UNCERTAINTY` px) or whose match falls outside the right view.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cade_cli.errors import CadeError
+from cade_cli.matching.base import DisparityRange, DisparityResult
+
+MODEL_NAME = "cade-v1"
+MODEL_DIR_ENV = "CADE_MODEL_DIR"
+MAX_UNCERTAINTY = 3.0
+"""Pixels whose soft-argmin distribution has a standard deviation above this (px, at the
+resolution the network ran) are reported invalid."""
+STRIP_PIXELS = 1_500_000
+"""Largest padded strip (pixels) given to the network at once; bounds memory (about 1 GB)."""
+STRIP_OVERLAP = 32
+"""Rows shared by neighbouring strips; each keeps the half nearer its own centre."""
+RANGE_MARGIN = 8
+"""The network's top levels are kept free: spans up to ``max_disp - RANGE_MARGIN`` run at full size."""
+
+
+def model_dir() -> Path:
+    """Where model files and cards are looked up: $CADE_MODEL_DIR, else the repo's models/."""
+    configured = os.environ.get(MODEL_DIR_ENV)
+    return Path(configured) if configured else Path(__file__).resolve().parents[2] / "models"
+
+
+@dataclass(frozen=True)
+class ModelCard:
+    path: Path
+    sha256: str
+    max_disp: int
+    divisor: int
+
+    @classmethod
+    def load(cls, name: str = MODEL_NAME, folder: Path | None = None) -> "ModelCard":
+        folder = model_dir() if folder is None else folder
+        card_path = folder / f"{name}.json"
+        if not card_path.is_file():
+            raise CadeError(f"model card {card_path} not found; set {MODEL_DIR_ENV} to the folder holding {name}.onnx")
+        try:
+            card = json.loads(card_path.read_text())
+            return cls(folder / card["file"], card["sha256"], int(card["max_disp"]), int(card["divisor"]))
+        except (ValueError, KeyError, TypeError) as error:
+            raise CadeError(f"model card {card_path} is malformed: {error}") from None
+
+
+@functools.lru_cache(maxsize=4)
+def _session(path: Path, sha256: str):
+    """One onnxruntime session per model file, built once after checking its sha256."""
+    if not path.is_file():
+        raise CadeError(f"model file {path} not found; set {MODEL_DIR_ENV} to the folder holding it")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest != sha256:
+        raise CadeError(f"model file {path} has sha256 {digest[:12]}..., its card says {sha256[:12]}...; "
+                        f"the file is damaged or not the one the card describes")
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.log_severity_level = 3
+    options.intra_op_num_threads = int(os.environ.get("OMP_NUM_THREADS") or 0)  # 0: one per physical core
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def shift_right_view(right: np.ndarray, shift: int) -> np.ndarray:
+    """``out(y, x) = right(y, x - shift)``, border columns replicated.
+
+    Matching left against ``out`` finds d - shift where matching against ``right`` finds d."""
+    if shift == 0:
+        return right
+    width = right.shape[1]
+    columns = np.clip(np.arange(width) - shift, 0, width - 1)
+    return np.ascontiguousarray(right[:, columns])
+
+
+def pyramid_factor(span: int, searchable: int) -> int:
+    """Smallest power of two that brings a disparity ``span`` within ``searchable``."""
+    factor = 1
+    while span / factor > searchable:
+        factor *= 2
+    return factor
+
+
+def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: int = STRIP_OVERLAP,
+           divisor: int = 8) -> list[tuple[int, int, int, int]]:
+    """Row bands ``(start, stop, keep_start, keep_stop)`` covering ``height`` rows.
+
+    Each band [start, stop) has at most ``max_pixels`` pixels (at least ``4 * overlap``
+    rows); [keep_start, keep_stop) are the rows it contributes to the output. The kept
+    rows tile [0, height) exactly."""
+    rows = max(4 * overlap, (max_pixels // max(width, 1)) // divisor * divisor)
+    if rows >= height:
+        return [(0, height, 0, height)]
+    step = rows - overlap
+    bands, start = [], 0
+    while True:
+        stop = min(start + rows, height)
+        start = max(0, stop - rows)
+        keep_start = 0 if start == 0 else start + overlap // 2
+        bands.append((start, stop, keep_start, stop))
+        if stop == height:
+            break
+        start += step
+    # Trim each band's kept rows where the next band starts keeping.
+    return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
+
+
+SUBPIXEL_RADIUS = 2
+SUBPIXEL_WINDOW = 5
+SUBPIXEL_MIN_ZNCC = 0.5
+
+
+def refine_subpixel(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *,
+                    radius: int = SUBPIXEL_RADIUS, window: int = SUBPIXEL_WINDOW,
+                    min_zncc: float = SUBPIXEL_MIN_ZNCC) -> np.ndarray:
+    """Sharpen the network's disparity with a local ZNCC search at full resolution.
+
+    For each pixel, ZNCC over a ``window`` x ``window`` patch is evaluated at the integer
+    disparities round(d) - radius .. round(d) + radius (the right band sampled per pixel,
+    so the patch follows the network's surface); the best one, refined by a parabola
+    through its neighbours, replaces d where it is an interior peak with ZNCC above
+    ``min_zncc``. Elsewhere (flat or ambiguous patches) d is kept.
+
+    Args:
+        left, right: (H, W) float32 color-agnostic bands.
+        disparity: (H, W) float32 network output for ``left``.
+    """
+    height, width = left.shape
+    base = np.rint(disparity).astype(np.int32)
+    columns = np.arange(width, dtype=np.int32)[None, :]
+    rows = np.arange(height)[:, None]
+    size = (window, window)
+
+    def box(image: np.ndarray) -> np.ndarray:
+        return cv2.blur(image, size, borderType=cv2.BORDER_REFLECT)
+
+    left_mean = box(left)
+    left_var = box(left * left) - left_mean * left_mean
+    scores = []
+    for offset in range(-radius, radius + 1):
+        source = np.clip(columns - (base + offset), 0, width - 1)
+        warped = right[rows, source]
+        warped_mean = box(warped)
+        covariance = box(left * warped) - left_mean * warped_mean
+        warped_var = box(warped * warped) - warped_mean * warped_mean
+        scores.append(covariance / np.sqrt(np.maximum(left_var * warped_var, 1e-12)))
+    scores = np.stack(scores)
+    best = np.argmax(scores, axis=0)
+    peak = np.take_along_axis(scores, best[None], 0)[0]
+    interior = (best > 0) & (best < 2 * radius)
+    before = np.take_along_axis(scores, np.clip(best - 1, 0, 2 * radius)[None], 0)[0]
+    after = np.take_along_axis(scores, np.clip(best + 1, 0, 2 * radius)[None], 0)[0]
+    curvature = before - 2 * peak + after
+    with np.errstate(divide="ignore", invalid="ignore"):
+        delta = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
+    refined = base + (best - radius) + np.clip(delta, -0.5, 0.5)
+    accept = interior & (peak >= min_zncc) & (left_var > 1e-6)
+    return np.where(accept, refined, disparity).astype(np.float32)
+
+
+class CadeNetwork:
+    """Kernel of the ``cade`` matcher (see the module docstring)."""
+
+    def __init__(self, name: str = MODEL_NAME, *, subpixel: bool = True):
+        self.name = name
+        self.subpixel = subpixel
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
+        card = ModelCard.load(self.name)
+        session = _session(card.path, card.sha256)
+        height, width = left.shape
+        span = disparity_range.count - 1
+        factor = pyramid_factor(span, card.max_disp - RANGE_MARGIN)
+        right = shift_right_view(right, disparity_range.minimum)
+        if factor > 1:
+            size = (max(1, round(width / factor)), max(1, round(height / factor)))
+            left_small, right_small = (cv2.resize(band, size, interpolation=cv2.INTER_AREA) for band in (left, right))
+        else:
+            left_small, right_small = left, right
+        disparity, uncertainty = self._run(session, card.divisor, left_small, right_small)
+        if self.subpixel:
+            disparity = refine_subpixel(left_small, right_small, disparity)
+        if factor > 1:
+            disparity = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
+                width / left_small.shape[1])
+            uncertainty = cv2.resize(uncertainty, (width, height), interpolation=cv2.INTER_LINEAR)
+        disparity = np.clip(disparity + disparity_range.minimum, disparity_range.minimum, disparity_range.maximum)
+        columns = np.arange(width, dtype=np.float32)[None, :]
+        inside = (columns - disparity >= 0) & (columns - disparity <= width - 1)
+        valid = inside & (uncertainty <= MAX_UNCERTAINTY)
+        return DisparityResult(disparity.astype(np.float32), valid)
+
+    @staticmethod
+    def _run(session, divisor: int, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Network outputs for a pair of any size: strips, padding, cropping."""
+        height, width = left.shape
+        disparity = np.empty((height, width), np.float32)
+        uncertainty = np.empty((height, width), np.float32)
+        padded_width = width + (-width % divisor)
+        for start, stop, keep_start, keep_stop in strips(height, padded_width, divisor=divisor):
+            rows = stop - start
+            pad = ((0, -rows % divisor), (0, -width % divisor))
+            inputs = {name: np.pad(band[start:stop], pad, mode="edge")[None, None].astype(np.float32, copy=False)
+                      for name, band in (("left", left), ("right", right))}
+            out_disparity, out_uncertainty = session.run(["disparity", "uncertainty"], inputs)
+            keep = slice(keep_start - start, keep_stop - start)
+            disparity[keep_start:keep_stop] = out_disparity[0, 0, keep, :width]
+            uncertainty[keep_start:keep_stop] = out_uncertainty[0, 0, keep, :width]
+        return disparity, uncertainty

@@ -1,0 +1,63 @@
+"""``python -m cade_cli.train fit|export``: train CadeNet on generated CADE pairs, export ONNX."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+
+
+@app.callback()
+def main() -> None:
+    """Train CadeNet on generated CADE pairs and export it to ONNX."""
+
+
+@app.command()
+def fit(
+    out: Annotated[Path, typer.Option(help="Run folder: config.json, log.csv, last.pt.")],
+    textures: Annotated[list[Path], typer.Option(help="Folder of texture images (repeatable).")] = [],
+    data_dir: Annotated[Path | None, typer.Option(help="Folder holding middlebury2014/ for validation.")] = None,
+    steps: Annotated[int, typer.Option(min=1)] = 7000,
+    batch: Annotated[int, typer.Option(min=1)] = 4,
+    height: Annotated[int, typer.Option(min=64)] = 192,
+    width: Annotated[int, typer.Option(min=64)] = 320,
+    max_disp: Annotated[int, typer.Option(min=16)] = 128,
+    lr: float = 1e-3,
+    seed: int = 0,
+    device: Annotated[str, typer.Option(help="cpu or cuda")] = "cpu",
+    threads: Annotated[int, typer.Option(min=1)] = 2,
+    workers: Annotated[int, typer.Option(min=0, help="Data-generating processes.")] = 1,
+    validate_every: Annotated[int, typer.Option(min=1)] = 500,
+    stop_after: Annotated[int | None, typer.Option(min=1, help="Stop (checkpointed) after this step.")] = None,
+    resume: Annotated[bool, typer.Option(help="Continue from OUT/last.pt when it exists.")] = True,
+) -> None:
+    """Train (or resume) a run."""
+    from cade_cli.train.fit import TrainConfig, train
+
+    config = TrainConfig(out=str(out), textures=[str(t) for t in textures],
+                         data_dir=str(data_dir) if data_dir else None, steps=steps, batch=batch, height=height,
+                         width=width, max_disp=max_disp, lr=lr, seed=seed, device=device, threads=threads,
+                         workers=workers, validate_every=validate_every, stop_after=stop_after)
+    train(config, resume=resume)
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt.")],
+    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v1.onnx"),
+    hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
+) -> None:
+    """Export CHECKPOINT to ONNX, verify it against PyTorch, write the JSON card beside it."""
+    from cade_cli.train.export import export_checkpoint
+
+    card = export_checkpoint(checkpoint, onnx_path, onnx_path.with_suffix(".json"),
+                             extra={"hardware": hardware} if hardware else None)
+    print(f"wrote {onnx_path} ({onnx_path.stat().st_size / 1e6:.2f} MB), sha256 {card['sha256']}; "
+          f"max |ONNX - PyTorch| = {card['onnx_vs_torch_max_abs_diff']:.2e} px")
+
+
+if __name__ == "__main__":
+    app()

@@ -1,0 +1,98 @@
+"""Export a trained CadeNet checkpoint to ONNX and write its model card.
+
+The exported graph is ``forward(left, right) -> (disparity, uncertainty)``: inputs
+``left``/``right`` (1, 1, H, W) float32 color-agnostic bands with H and W multiples of
+:data:`~cade_cli.train.model.DIVISOR`; outputs (1, 1, H, W) float32 disparity and
+uncertainty in pixels. Height and width are dynamic.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
+
+OPSET = 17
+INPUT_NAMES = ["left", "right"]
+OUTPUT_NAMES = ["disparity", "uncertainty"]
+
+
+def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
+    state = torch.load(path, map_location="cpu", weights_only=False)
+    net = CadeNet(state["config"]["max_disp"])
+    net.load_state_dict(state["model"])
+    return net.eval(), state
+
+
+def export_onnx(net: CadeNet, path: Path, *, sample_size: tuple[int, int] = (192, 256)) -> None:
+    """Write ``net`` as ONNX (legacy TorchScript exporter: no onnxscript dependency)."""
+    wrapper = ExportWrapper(net).eval()
+    example = (torch.rand(1, 1, *sample_size), torch.rand(1, 1, *sample_size))
+    temporary = path.with_name(path.name + ".tmp")
+    with warnings.catch_warnings():  # "constant folding not applied" for the cost volume's slices
+        warnings.simplefilter("ignore", UserWarning)
+        torch.onnx.export(
+            wrapper, example, str(temporary), input_names=INPUT_NAMES, output_names=OUTPUT_NAMES,
+            dynamic_axes={name: {2: "height", 3: "width"} for name in INPUT_NAMES + OUTPUT_NAMES},
+            opset_version=OPSET, dynamo=False,
+        )
+    temporary.replace(path)
+
+
+def verify_onnx(net: CadeNet, path: Path, *, sizes=((96, 128), (200, 328)), seed: int = 0) -> float:
+    """Max |ONNX - PyTorch| over both outputs on random inputs of several sizes (px)."""
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(seed)
+    worst = 0.0
+    wrapper = ExportWrapper(net).eval()
+    for height, width in sizes:
+        left, right = (rng.random((1, 1, height, width), dtype=np.float32) for _ in range(2))
+        with torch.no_grad():
+            expected = [t.numpy() for t in wrapper(torch.from_numpy(left), torch.from_numpy(right))]
+        got = session.run(OUTPUT_NAMES, {"left": left, "right": right})
+        worst = max(worst, *(float(np.abs(a - b).max()) for a, b in zip(got, expected)))
+    return worst
+
+
+def sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None) -> dict:
+    """Export, verify against PyTorch, and write the JSON card the runtime reads."""
+    net, state = load_checkpoint(checkpoint)
+    export_onnx(net, onnx_path)
+    max_difference = verify_onnx(net, onnx_path)
+    card = {
+        "name": onnx_path.stem,
+        "file": onnx_path.name,
+        "sha256": sha256(onnx_path),
+        "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
+                        "-> soft-argmin -> full-res refinement",
+        "parameters": parameter_count(net),
+        "max_disp": net.max_disp,
+        "divisor": DIVISOR,
+        "inputs": INPUT_NAMES,
+        "outputs": OUTPUT_NAMES,
+        "input_transform": "cade_cli.spectral.color_agnostic (window 3) on each band",
+        "opset": OPSET,
+        "onnx_vs_torch_max_abs_diff": max_difference,
+        "steps": state["step"],
+        "train_wall_time_s": round(state["elapsed_s"]),
+        "train_config": state["config"],
+        **(extra or {}),
+    }
+    card_path.write_text(json.dumps(card, indent=2) + "\n")
+    return card

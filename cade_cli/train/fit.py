@@ -1,0 +1,227 @@
+"""Training loop: generated CADE pairs -> CadeNet, with CSV log, validation, checkpoints.
+
+Every batch is drawn from ``np.random.default_rng([seed, step])``, so a run resumed from
+a checkpoint sees exactly the batches the uninterrupted run would have seen.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from cade_cli.train.model import DIVISOR, CadeNet, parameter_count
+from cade_cli.train.pairs import cade_pair
+from cade_cli.train.scenes import TexturePool, render_scene
+
+
+@dataclass
+class TrainConfig:
+    out: str
+    textures: list[str]
+    data_dir: str | None = None
+    steps: int = 7000
+    batch: int = 4
+    height: int = 192
+    width: int = 320
+    max_disp: int = 128
+    lr: float = 1e-3
+    warmup: int = 200
+    seed: int = 0
+    device: str = "cpu"
+    threads: int = 2
+    workers: int = 1
+    validate_every: int = 500
+    checkpoint_every: int = 250
+    coarse_weight: float = 0.5
+    stop_after: int | None = None
+    """Leave the loop after this step (checkpointed) although the schedule runs to ``steps``."""
+
+
+class GeneratedBatches(torch.utils.data.Dataset):
+    """Item ``step`` is the training batch for that step (deterministic in seed and step)."""
+
+    def __init__(self, config: TrainConfig):
+        self.config = config
+        self.pool: TexturePool | None = None
+
+    def __len__(self) -> int:
+        return self.config.steps
+
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+        config = self.config
+        if self.pool is None:
+            self.pool = TexturePool([Path(folder) for folder in config.textures])
+        rng = np.random.default_rng([config.seed, step])
+        return collate([generated_pair(rng, self.pool, config.height, config.width, config.max_disp)
+                        for _ in range(config.batch)])
+
+
+def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, max_disp: int):
+    """One CADE pair of a freshly rendered scene; disparities below ``max_disp``."""
+    scene = render_scene(rng, height, width, max_disp=max_disp - 1, textures=pool)
+    return cade_pair(scene, rng)
+
+
+def collate(pairs) -> dict[str, torch.Tensor]:
+    return {
+        "left": torch.from_numpy(np.stack([p.left for p in pairs])[:, None]),
+        "right": torch.from_numpy(np.stack([p.right for p in pairs])[:, None]),
+        "disparity": torch.from_numpy(np.stack([p.disparity for p in pairs])[:, None]),
+        "nonoccluded": torch.from_numpy(np.stack([p.nonoccluded for p in pairs])[:, None]),
+    }
+
+
+def learning_rate(config: TrainConfig, step: int) -> float:
+    """Linear warm-up, then cosine decay to 5 % of ``lr`` at the last step."""
+    if step < config.warmup:
+        return config.lr * (step + 1) / config.warmup
+    progress = (step - config.warmup) / max(1, config.steps - config.warmup)
+    return config.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
+
+
+def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, max_disp: int, coarse_weight: float):
+    mask = (target >= 0) & (target < max_disp)
+    fine = F.smooth_l1_loss(out["disparity"][mask], target[mask])
+    coarse = F.smooth_l1_loss(out["coarse"][mask], target[mask])
+    return fine + coarse_weight * coarse, mask
+
+
+def pad_to_divisor(image: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int]]:
+    height, width = image.shape[-2:]
+    pad_h, pad_w = -height % DIVISOR, -width % DIVISOR
+    if pad_h or pad_w:
+        image = F.pad(image, (0, pad_w, 0, pad_h), mode="replicate")
+    return image, (height, width)
+
+
+@torch.no_grad()
+def predict(net: CadeNet, left: np.ndarray, right: np.ndarray, device: str) -> np.ndarray:
+    """Disparity of one pair of CADE bands (H, W), any size (padded, then cropped)."""
+    tensors = [pad_to_divisor(torch.from_numpy(band)[None, None].to(device))[0] for band in (left, right)]
+    disparity = net(*tensors)["disparity"][0, 0, : left.shape[0], : left.shape[1]]
+    return disparity.cpu().numpy()
+
+
+def validation_sets(config: TrainConfig) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """Fixed validation pairs: 24 generated CS pairs (seed 10**6 + i, never a training
+    seed) and, when ``data_dir`` holds it, Middlebury 2014 Q in the CS tasks R>B and B>R,
+    downscaled by powers of 2 until the scene's range fits the model."""
+    import cv2
+
+    from cade_cli.spectral import color_agnostic
+
+    pool = TexturePool([Path(folder) for folder in config.textures])
+    synthetic = []
+    for i in range(24):
+        pair = generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.max_disp)
+        synthetic.append((pair.left, pair.right, pair.disparity))
+    sets = {"synthetic": synthetic}
+    if config.data_dir and Path(config.data_dir).is_dir():
+        from cade_cli.datasets import get_dataset
+
+        middlebury = []
+        for scene in get_dataset("middlebury14")(Path(config.data_dir), resolution="Q"):
+            scale = 1
+            while scene.max_disp / scale > config.max_disp - 8:
+                scale *= 2
+            size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
+            left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
+            gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
+            for a, b in ((0, 2), (2, 0)):
+                middlebury.append((color_agnostic(left[..., a]), color_agnostic(right[..., b]), gt))
+        sets["middlebury14Q-cs"] = middlebury
+    return sets
+
+
+def evaluate(net: CadeNet, pairs, device: str) -> tuple[float, float]:
+    """EPE and bad-3 (%) over all pixels with finite ground truth."""
+    errors = []
+    for left, right, gt in pairs:
+        valid = np.isfinite(gt)
+        errors.append(np.abs(predict(net, left, right, device) - gt)[valid])
+    error = np.concatenate(errors)
+    return float(error.mean()), float(100 * (error > 3).mean())
+
+
+def train(config: TrainConfig, *, resume: bool = True) -> Path:
+    """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
+    torch.set_num_threads(config.threads)
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    checkpoint_path = out / "last.pt"
+    torch.manual_seed(config.seed)
+    net = CadeNet(config.max_disp).to(config.device)
+    optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
+    start, elapsed_before = 0, 0.0
+    if resume and checkpoint_path.exists():
+        state = torch.load(checkpoint_path, map_location=config.device, weights_only=False)
+        net.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        start, elapsed_before = state["step"], state["elapsed_s"]
+        torch.set_rng_state(state["torch_rng"])
+    (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
+    log_path = out / "log.csv"
+    new_log = not log_path.exists() or start == 0
+    log = log_path.open("w" if new_log else "a", newline="")
+    writer = csv.writer(log)
+    if new_log:
+        writer.writerow(["step", "elapsed_s", "lr", "loss", "train_epe", "set", "val_epe", "val_bad3"])
+    validation = validation_sets(config)
+    print(f"CadeNet: {parameter_count(net)} parameters; steps {start}..{config.steps}", flush=True)
+
+    batches = torch.utils.data.DataLoader(
+        torch.utils.data.Subset(GeneratedBatches(config), range(start, min(config.steps, config.stop_after or config.steps))),
+        batch_size=None, num_workers=config.workers, persistent_workers=False, prefetch_factor=4 if config.workers else None,
+    )
+    started = time.time()
+    running_loss, running_epe, seen = 0.0, 0.0, 0
+    net.train()
+    for step, batch in enumerate(batches, start=start):
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config, step)
+        batch = {key: value.to(config.device) for key, value in batch.items()}
+        out_ = net(batch["left"], batch["right"])
+        loss, mask = loss_terms(out_, batch["disparity"], config.max_disp, config.coarse_weight)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
+        optimizer.step()
+        running_loss += loss.item()
+        running_epe += (out_["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
+        seen += 1
+        done = step + 1
+        elapsed = elapsed_before + time.time() - started
+        if done % 50 == 0:
+            writer.writerow([done, f"{elapsed:.0f}", f"{learning_rate(config, step):.2e}", f"{running_loss / seen:.4f}",
+                             f"{running_epe / seen:.3f}", "train", "", ""])
+            log.flush()
+            print(f"step {done} {elapsed:.0f}s loss {running_loss / seen:.3f} epe {running_epe / seen:.2f}", flush=True)
+            running_loss, running_epe, seen = 0.0, 0.0, 0
+        if done % config.validate_every == 0 or done == config.steps:
+            net.eval()
+            for name, pairs in validation.items():
+                epe, bad3 = evaluate(net, pairs, config.device)
+                writer.writerow([done, f"{elapsed:.0f}", "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}"])
+                print(f"  validation {name}: EPE {epe:.2f} bad3 {bad3:.1f}%", flush=True)
+            log.flush()
+            net.train()
+        if done % config.checkpoint_every == 0 or done in (config.steps, config.stop_after):
+            save_checkpoint(checkpoint_path, net, optimizer, done, elapsed, config)
+    log.close()
+    return checkpoint_path
+
+
+def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, config: TrainConfig) -> None:
+    temporary = path.with_name(path.name + ".tmp")
+    torch.save({"model": net.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "elapsed_s": elapsed,
+                "config": asdict(config), "torch_rng": torch.get_rng_state()}, temporary)
+    os.replace(temporary, path)

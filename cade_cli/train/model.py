@@ -1,0 +1,167 @@
+"""The CADE stereo network: small enough to train and run on a CPU.
+
+Design (justified in models/README.md):
+  features   2D CNN, CADE band -> 32 channels at 1/4 resolution (replicate padding);
+  cost       group-wise correlation (8 groups) over max_disp/4 disparity levels;
+  aggregate  3D CNN with one stride-2 hourglass, 8-16 channels;
+  regress    soft-argmin over the levels (x4 to full-resolution pixels), plus the
+             standard deviation of that distribution as an uncertainty;
+  refine     full-resolution 2D residual refinement guided by the left band
+             (dilated convolutions, 16 channels), for edges and sub-pixel detail.
+
+Inputs are color-agnostic bands (cade_cli.spectral.color_agnostic), (B, 1, H, W) with H
+and W multiples of :data:`DIVISOR`. Everything exports to ONNX with standard ops.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+DIVISOR = 8
+"""Input height and width must be multiples of this (1/4 features, one more stride-2 3D level)."""
+
+
+def conv2d(cin: int, cout: int, *, stride: int = 1, dilation: int = 1, act: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = [
+        nn.Conv2d(cin, cout, 3, stride, padding=dilation, dilation=dilation, bias=not act, padding_mode="replicate")
+    ]
+    if act:
+        layers += [nn.BatchNorm2d(cout), nn.LeakyReLU(0.1, inplace=True)]
+    return nn.Sequential(*layers)
+
+
+def conv3d(cin: int, cout: int, *, stride: int = 1, act: bool = True) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Conv3d(cin, cout, 3, stride, padding=1, bias=not act)]
+    if act:
+        layers += [nn.BatchNorm3d(cout), nn.LeakyReLU(0.1, inplace=True)]
+    return nn.Sequential(*layers)
+
+
+class ResidualBlock(nn.Module):
+    def __init__(self, channels: int, dilation: int = 1):
+        super().__init__()
+        self.body = nn.Sequential(conv2d(channels, channels, dilation=dilation),
+                                  nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation,
+                                            bias=False, padding_mode="replicate"),
+                                  nn.BatchNorm2d(channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.leaky_relu(x + self.body(x), 0.1)
+
+
+class FeatureNet(nn.Module):
+    """(B, 1, H, W) -> (B, C, H/4, W/4)."""
+
+    def __init__(self, channels: int = 32):
+        super().__init__()
+        self.net = nn.Sequential(
+            conv2d(1, 16, stride=2), conv2d(16, 16),
+            conv2d(16, channels, stride=2), ResidualBlock(channels), ResidualBlock(channels, 2),
+            ResidualBlock(channels),
+            nn.Conv2d(channels, channels, 3, padding=1, padding_mode="replicate"),
+        )
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, groups: int) -> torch.Tensor:
+    """Cost volume (B, G, D, h, w): mean product of each channel group of left(x) and right(x - d).
+
+    Where x - d falls outside the right view the correlation is 0."""
+    batch, channels, height, width = left.shape
+    per_group = channels // groups
+    slices = []
+    for d in range(levels):
+        shifted = F.pad(right, (d, 0))[..., :width] if d else right
+        product = (left * shifted).view(batch, groups, per_group, height, width).mean(dim=2)
+        slices.append(product)
+    return torch.stack(slices, dim=2)
+
+
+class Aggregation(nn.Module):
+    """3D CNN over the cost volume, one hourglass level, -> logits (B, D, h, w)."""
+
+    def __init__(self, groups: int = 8, channels: int = 8):
+        super().__init__()
+        self.entry = nn.Sequential(conv3d(groups, channels), conv3d(channels, channels))
+        self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2), conv3d(2 * channels, 2 * channels))
+        self.up = nn.Sequential(nn.ConvTranspose3d(2 * channels, channels, 2, stride=2, bias=False),
+                                nn.BatchNorm3d(channels))
+        self.exit = nn.Sequential(conv3d(channels, channels), conv3d(channels, 1, act=False))
+
+    def forward(self, cost: torch.Tensor) -> torch.Tensor:
+        x = self.entry(cost)
+        x = F.leaky_relu(x + self.up(self.down(x)), 0.1)
+        return self.exit(x).squeeze(1)
+
+
+class Refinement(nn.Module):
+    """Full-resolution residual on the upsampled disparity, guided by the left band."""
+
+    def __init__(self, channels: int = 16):
+        super().__init__()
+        self.net = nn.Sequential(
+            conv2d(2, channels), conv2d(channels, channels, dilation=2), conv2d(channels, channels, dilation=4),
+            conv2d(channels, channels), nn.Conv2d(channels, 1, 3, padding=1, padding_mode="replicate"),
+        )
+        nn.init.zeros_(self.net[-1].weight)  # start as the identity: refine what the cost volume found
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, disparity: torch.Tensor, left: torch.Tensor, scale: float) -> torch.Tensor:
+        return disparity + self.net(torch.cat([disparity / scale, left], dim=1))
+
+
+class CadeNet(nn.Module):
+    """Stereo network on color-agnostic bands.
+
+    Args:
+        max_disp: disparities searched at full resolution are 0 .. max_disp - 4 in steps
+            of 4 at the 1/4 level (max_disp must be a multiple of 8).
+    """
+
+    def __init__(self, max_disp: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
+                 refine_channels: int = 16):
+        super().__init__()
+        if max_disp % DIVISOR:
+            raise ValueError(f"max_disp must be a multiple of {DIVISOR}, got {max_disp}")
+        self.max_disp, self.groups = max_disp, groups
+        self.levels = max_disp // 4
+        self.features = FeatureNet(features)
+        self.aggregation = Aggregation(groups, channels3d)
+        self.refinement = Refinement(refine_channels)
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
+        """left, right: (B, 1, H, W) -> dict with ``disparity`` (B, 1, H, W) refined,
+        ``coarse`` (B, 1, H, W) soft-argmin upsampled, ``uncertainty`` (B, 1, H, W) px."""
+        both = self.features(torch.cat([left, right], dim=0))
+        feat_left, feat_right = both.chunk(2, dim=0)
+        logits = self.aggregation(groupwise_correlation(feat_left, feat_right, self.levels, self.groups))
+        probability = torch.softmax(logits, dim=1)
+        levels = torch.arange(self.levels, dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
+        mean = (probability * levels).sum(dim=1, keepdim=True)
+        variance = (probability * (levels - mean) ** 2).sum(dim=1, keepdim=True)
+        size = left.shape[-2:]
+        coarse = 4.0 * F.interpolate(mean, size=size, mode="bilinear", align_corners=False)
+        uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear",
+                                          align_corners=False)
+        disparity = self.refinement(coarse, left, float(self.max_disp))
+        return {"disparity": disparity, "coarse": coarse, "uncertainty": uncertainty}
+
+
+class ExportWrapper(nn.Module):
+    """``forward(left, right) -> (disparity, uncertainty)`` for ONNX: fixed eval settings."""
+
+    def __init__(self, net: CadeNet):
+        super().__init__()
+        self.net = net.eval()
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        out = self.net(left, right)
+        return out["disparity"], out["uncertainty"]
+
+
+def parameter_count(net: nn.Module) -> int:
+    return sum(p.numel() for p in net.parameters())

@@ -1,0 +1,306 @@
+"""Artificial stereo scenes with exact disparity, in the spirit of FlyingThings3D.
+
+A scene is a stack of layers: a slanted background plane covering the whole view and
+a few objects in front of it. Each layer has an affine disparity d(x, y) = a + b x + c y
+(a slanted plane), a shape (analytic, so it can be evaluated at any sub-pixel position)
+and a texture mapped into left-view coordinates with a random similarity transform.
+
+The left view samples every layer at its own pixel; the right view maps each right
+pixel back to the left-view position that projects onto it, x = (x_r + a + c y)/(1 - b),
+and samples the layer there. In both views the layer with the largest disparity (the
+nearest surface) wins, so occlusions are physically right. Both views resample the
+textures at non-integer positions (scale and rotation), so neither is softer than the
+other. No torch here: this module is plain NumPy/OpenCV and is tested like the runtime.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import cv2
+import numpy as np
+
+from cade_cli.errors import CadeError
+
+TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
+
+
+@dataclass(frozen=True)
+class StereoScene:
+    """One rendered pair.
+
+    Attributes:
+        left, right: (H, W, 3) float32 RGB in [0, 1].
+        disparity: (H, W) float32, left view, pixels; I_left(y, x) ~ I_right(y, x - d).
+        nonoccluded: (H, W) bool, True where the left pixel's surface point is visible in
+            the right view (same layer wins there and it lies inside the image).
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    disparity: np.ndarray
+    nonoccluded: np.ndarray
+
+
+@dataclass(frozen=True)
+class Photometric:
+    """Per-view camera differences applied after rendering (to each view independently)."""
+
+    gain: tuple[float, float] = (0.6, 1.4)
+    gamma: tuple[float, float] = (0.7, 1.4)
+    blur_sigma: tuple[float, float] = (0.0, 1.0)
+    noise_sigma: tuple[float, float] = (0.0, 0.03)
+
+
+NO_PHOTOMETRIC = Photometric((1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0))
+
+
+class TexturePool:
+    """Natural-image textures from folders (loaded lazily, kept in memory) plus
+    procedural ones drawn on demand.
+
+    Args:
+        folders: directories searched recursively for images; may be empty.
+        procedural_share: probability that :meth:`draw` returns a procedural texture
+            even when image files exist.
+    """
+
+    def __init__(self, folders: list[Path] | tuple[Path, ...] = (), *, procedural_share: float = 0.4):
+        self.files = sorted(
+            path for folder in folders for path in Path(folder).rglob("*")
+            if path.suffix.lower() in TEXTURE_SUFFIXES
+        )
+        for folder in folders:
+            if not Path(folder).is_dir():
+                raise CadeError(f"texture folder not found: {folder}")
+        self.procedural_share = procedural_share if self.files else 1.0
+        self._cache: dict[Path, np.ndarray] = {}
+
+    def draw(self, rng: np.random.Generator, size: int = 384) -> np.ndarray:
+        """A (h, w, 3) float32 RGB texture in [0, 1], at least ``size`` on its shorter side
+        for procedural textures (image files are used at their own size)."""
+        if rng.random() < self.procedural_share:
+            return procedural_texture(rng, size)
+        path = self.files[rng.integers(len(self.files))]
+        if path not in self._cache:
+            image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+            if image is None:
+                raise CadeError(f"cannot read texture image {path}")
+            self._cache[path] = image[..., ::-1].astype(np.float32) / 255.0
+        texture = self._cache[path]
+        if rng.random() < 0.5:  # a random crop keeps single objects from showing whole photos
+            h, w = texture.shape[:2]
+            ch, cw = int(h * rng.uniform(0.4, 1.0)), int(w * rng.uniform(0.4, 1.0))
+            top, left = rng.integers(h - ch + 1), rng.integers(w - cw + 1)
+            texture = texture[top:top + ch, left:left + cw]
+        return np.ascontiguousarray(texture)
+
+
+def procedural_texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
+    """A (size, size, 3) float32 texture in [0, 1]: multi-scale noise, stripes, a smooth
+    gradient, coloured patches or a checkerboard, with random colours."""
+    kind = rng.choice(["noise", "stripes", "gradient", "patches", "checker"], p=[0.35, 0.15, 0.15, 0.25, 0.1])
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    if kind == "noise":
+        value = np.zeros((size, size), np.float32)
+        for level in range(rng.integers(1, 5)):
+            cells = int(rng.integers(4, max(5, size // (1 + 2 * level))))
+            small = rng.random((cells, cells)).astype(np.float32)
+            value += rng.uniform(0.2, 1.0) * cv2.resize(small, (size, size), interpolation=cv2.INTER_CUBIC)
+    elif kind == "stripes":
+        angle, period = rng.uniform(0, math.pi), rng.uniform(3.0, 40.0)
+        phase = (xx * math.cos(angle) + yy * math.sin(angle)) * (2 * math.pi / period)
+        value = np.sin(phase)
+        if rng.random() < 0.5:
+            value = np.sign(value)
+    elif kind == "gradient":
+        angle = rng.uniform(0, 2 * math.pi)
+        value = (xx * math.cos(angle) + yy * math.sin(angle)) / size
+        value = value + 0.05 * rng.standard_normal((size, size)).astype(np.float32)
+    elif kind == "patches":
+        canvas = np.zeros((size, size, 3), np.float32)
+        for _ in range(rng.integers(5, 60)):
+            colour = tuple(float(c) for c in rng.random(3))
+            centre = (int(rng.integers(size)), int(rng.integers(size)))
+            if rng.random() < 0.5:
+                cv2.circle(canvas, centre, int(rng.integers(3, size // 4)), colour, -1)
+            else:
+                corner = (centre[0] + int(rng.integers(-size // 4, size // 4)),
+                          centre[1] + int(rng.integers(-size // 4, size // 4)))
+                cv2.rectangle(canvas, centre, corner, colour, -1)
+        return canvas
+    else:
+        period = rng.uniform(4.0, 48.0)
+        value = ((np.floor(xx / period) + np.floor(yy / period)) % 2).astype(np.float32)
+    value = (value - value.min()) / max(float(value.max() - value.min()), 1e-6)
+    low, high = rng.random(3).astype(np.float32), rng.random(3).astype(np.float32)
+    return (low + value[..., None] * (high - low)).astype(np.float32)
+
+
+Shape = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
+    """An analytic object outline: a wobbly blob (polar radius with a few harmonics) or a
+    rotated rectangle, between 8 % and 60 % of the image's smaller side across."""
+    cx, cy = rng.uniform(-0.1, 1.1) * width, rng.uniform(-0.1, 1.1) * height
+    radius = rng.uniform(0.08, 0.6) * min(height, width) / 1.0
+    angle = rng.uniform(0, 2 * math.pi)
+    if rng.random() < 0.6:
+        harmonics = [(k, rng.uniform(0, 0.35 / k), rng.uniform(0, 2 * math.pi)) for k in range(2, 6)]
+        aspect = rng.uniform(0.5, 1.0)
+
+        def blob(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            u = (x - cx) * math.cos(angle) + (y - cy) * math.sin(angle)
+            v = ((y - cy) * math.cos(angle) - (x - cx) * math.sin(angle)) / aspect
+            theta = np.arctan2(v, u)
+            rho = radius * (1 + sum(a * np.cos(k * theta + p) for k, a, p in harmonics))
+            return u * u + v * v < rho * rho
+
+        return blob
+    half_w, half_h = radius, radius * rng.uniform(0.2, 1.0)
+
+    def rectangle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        u = (x - cx) * math.cos(angle) + (y - cy) * math.sin(angle)
+        v = (y - cy) * math.cos(angle) - (x - cx) * math.sin(angle)
+        return (np.abs(u) < half_w) & (np.abs(v) < half_h)
+
+    return rectangle
+
+
+@dataclass(frozen=True)
+class Layer:
+    plane: tuple[float, float, float]  # d = a + b x + c y
+    shape: Shape | None                # None: covers everything (background)
+    texture: np.ndarray                # (h, w, 3)
+    mapping: np.ndarray                # 2x3 affine, left-view (x, y) -> texture (u, v)
+
+    def disparity(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        a, b, c = self.plane
+        return a + b * x + c * y
+
+    def source_column(self, right_x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Left-view column whose surface point lands on right column ``right_x``."""
+        a, b, c = self.plane
+        return (right_x + a + c * y) / (1.0 - b)
+
+    def covers(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.ones(x.shape, bool) if self.shape is None else self.shape(x, y)
+
+    def colour(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        (m00, m01, m02), (m10, m11, m12) = self.mapping
+        u = (m00 * x + m01 * y + m02).astype(np.float32)
+        v = (m10 * x + m11 * y + m12).astype(np.float32)
+        return cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+
+
+def _plane(rng: np.random.Generator, height: int, width: int, low: float, high: float) -> tuple[float, float, float]:
+    """A plane whose disparity over the whole view stays inside [low, high]."""
+    slope_scale = rng.choice([0.0, 0.02, 0.1, 0.3], p=[0.25, 0.3, 0.3, 0.15])
+    b, c = rng.uniform(-slope_scale, slope_scale, size=2)
+    span = abs(b) * width + abs(c) * height
+    if span > 0.8 * (high - low):  # too steep for the range: flatten it
+        shrink = 0.8 * (high - low) / span
+        b, c, span = b * shrink, c * shrink, span * shrink
+    centre = rng.uniform(low + span / 2, high - span / 2)
+    a = centre - b * width / 2 - c * height / 2
+    return float(a), float(b), float(c)
+
+
+def _mapping(rng: np.random.Generator, texture: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Similarity transform from view coordinates into the texture (random scale, rotation, shift)."""
+    scale = math.exp(rng.uniform(math.log(0.35), math.log(1.6)))
+    angle = rng.uniform(0, 2 * math.pi) if rng.random() < 0.5 else rng.uniform(-0.2, 0.2)
+    cos, sin = scale * math.cos(angle), scale * math.sin(angle)
+    th, tw = texture.shape[:2]
+    return np.array([[cos, -sin, rng.uniform(0, tw)], [sin, cos, rng.uniform(0, th)]], np.float64)
+
+
+def _composite(layers: list[Layer], columns: list[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Z-buffer: for each pixel the covering layer with the largest disparity.
+
+    ``columns[i]`` is where layer i is sampled (left-view x). Returns the image, the
+    winning layer's disparity and the winning layer's index."""
+    best = np.full(y.shape, -np.inf, np.float32)
+    index = np.zeros(y.shape, np.int16)
+    for i, (layer, x) in enumerate(zip(layers, columns)):
+        d = layer.disparity(x, y).astype(np.float32)
+        wins = layer.covers(x, y) & (d > best)
+        best = np.where(wins, d, best)
+        index[wins] = i
+    image = np.zeros(y.shape + (3,), np.float32)
+    for i, (layer, x) in enumerate(zip(layers, columns)):
+        where = index == i
+        if where.any():
+            image[where] = layer.colour(x, y)[where]
+    return image, best, index
+
+
+def render_scene(
+    rng: np.random.Generator,
+    height: int,
+    width: int,
+    *,
+    max_disp: float,
+    textures: TexturePool,
+    objects: tuple[int, int] = (2, 9),
+    photometric: Photometric = Photometric(),
+) -> StereoScene:
+    """Render one stereo pair with disparity in [0, max_disp).
+
+    Args:
+        height, width: size of each view.
+        max_disp: exclusive upper bound of every disparity in the scene.
+        textures: where layer textures come from.
+        objects: inclusive-exclusive range for the number of objects before the background.
+        photometric: ranges of the per-view gain (per channel), gamma, blur and noise.
+    """
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
+    background_high = max_disp * (0.5 if rng.random() < 0.7 else 0.95)
+    layers = [Layer(_plane(rng, height, width, 0.0, background_high), None, *_textured(rng, textures, height, width))]
+    corners = layers[0].disparity(np.array([0.0, width, 0.0, width]), np.array([0.0, 0.0, height, height]))
+    farthest_background = float(corners.min())
+    for _ in range(rng.integers(*objects)):
+        low = farthest_background if rng.random() < 0.8 else 0.0
+        layers.append(Layer(_plane(rng, height, width, low, max_disp * 0.995),
+                            random_shape(rng, height, width), *_textured(rng, textures, height, width)))
+
+    left, disparity, left_index = _composite(layers, [x] * len(layers), y)
+    right, _, right_index = _composite(layers, [layer.source_column(x, y) for layer in layers], y)
+
+    right_x = np.rint(x - disparity).astype(np.int64)
+    inside = (right_x >= 0) & (right_x < width)
+    rows = np.arange(height)[:, None].repeat(width, 1)
+    seen = np.zeros((height, width), bool)
+    seen[inside] = right_index[rows[inside], right_x[inside]] == left_index[inside]
+    return StereoScene(
+        left=_camera(rng, left, photometric),
+        right=_camera(rng, right, photometric),
+        disparity=disparity.astype(np.float32),
+        nonoccluded=seen,
+    )
+
+
+def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    texture = textures.draw(rng)
+    if rng.random() < 0.1:  # nearly textureless surfaces exist too
+        mean = texture.mean(axis=(0, 1), keepdims=True)
+        texture = (mean + rng.uniform(0.02, 0.15) * (texture - mean)).astype(np.float32)
+    return texture, _mapping(rng, texture, height, width)
+
+
+def _camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometric) -> np.ndarray:
+    gain = rng.uniform(*photometric.gain, size=3).astype(np.float32)
+    gamma = rng.uniform(*photometric.gamma)
+    sigma = rng.uniform(*photometric.blur_sigma)
+    noise = rng.uniform(*photometric.noise_sigma)
+    out = np.clip(image * gain, 0.0, 1.0) ** np.float32(gamma)
+    if sigma > 0.05:
+        out = cv2.GaussianBlur(out, (0, 0), sigma)
+    if noise > 0:
+        out = out + noise * rng.standard_normal(out.shape).astype(np.float32)
+    return np.clip(out, 0.0, 1.0).astype(np.float32)

@@ -1,0 +1,128 @@
+"""The shipped CADE network, run through onnxruntime (no torch)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from cade_cli.errors import CadeError
+from cade_cli.matching import MATCHERS, learned
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.learned import ModelCard, pyramid_factor, shift_right_view, strips
+from cade_cli.spectral import color_agnostic
+from synthetic import render_pair
+
+CADE = MATCHERS["cade"]
+
+
+def test_shipped_model_matches_its_card():
+    card = ModelCard.load()
+    assert card.path.is_file() and card.max_disp % card.divisor == 0
+    learned._session(card.path, card.sha256)  # verifies the sha256
+
+
+def test_a_damaged_model_is_refused(tmp_path: Path, monkeypatch):
+    card = ModelCard.load()
+    shutil.copy(card.path, tmp_path / card.path.name)
+    with open(tmp_path / card.path.name, "r+b") as stream:
+        stream.seek(-10, 2)
+        stream.write(b"0123456789")
+    shutil.copy(card.path.with_suffix(".json"), tmp_path)
+    monkeypatch.setenv(learned.MODEL_DIR_ENV, str(tmp_path))
+    band = np.random.default_rng(0).random((32, 48)).astype(np.float32)
+    with pytest.raises(CadeError, match="sha256"):
+        CADE(band, band, max_disp=8)
+
+
+def test_a_missing_card_names_the_environment_variable(tmp_path: Path, monkeypatch):
+    monkeypatch.setenv(learned.MODEL_DIR_ENV, str(tmp_path))
+    band = np.zeros((32, 48), np.float32)
+    with pytest.raises(CadeError, match=learned.MODEL_DIR_ENV):
+        CADE(band, band, max_disp=8)
+    (tmp_path / "cade-v1.json").write_text(json.dumps({"file": "x.onnx"}))
+    with pytest.raises(CadeError, match="malformed"):
+        CADE(band, band, max_disp=8)
+
+
+def test_raw_bands_are_refused():
+    band = np.zeros((32, 48), np.float32)
+    with pytest.raises(CadeError, match="color-agnostic"):
+        CADE(band, band, max_disp=8, preprocess="none")
+
+
+@pytest.mark.parametrize("shift", [-7, 0, 5])
+def test_shift_right_view_moves_columns(shift):
+    right = np.arange(40, dtype=np.float32).reshape(2, 20)
+    shifted = shift_right_view(right, shift)
+    for x in range(20):
+        np.testing.assert_array_equal(shifted[:, x], right[:, min(max(x - shift, 0), 19)])
+
+
+@pytest.mark.parametrize("span, searchable, factor", [(10, 120, 1), (120, 120, 1), (121, 120, 2), (500, 120, 8)])
+def test_pyramid_factor(span, searchable, factor):
+    assert pyramid_factor(span, searchable) == factor
+
+
+@given(height=st.integers(1, 3000), width=st.integers(1, 4000), max_pixels=st.integers(10_000, 2_000_000))
+def test_strips_tile_the_rows_within_the_pixel_budget(height, width, max_pixels):
+    bands = strips(height, width, max_pixels=max_pixels, overlap=32)
+    kept = [row for _, _, keep_start, keep_stop in bands for row in range(keep_start, keep_stop)]
+    assert kept == list(range(height))
+    for start, stop, keep_start, keep_stop in bands:
+        assert 0 <= start <= keep_start < keep_stop <= stop <= height
+        assert (stop - start) * width <= max(max_pixels, 128 * width)
+        if len(bands) > 1:  # every kept row has context from its neighbours (or the border)
+            assert keep_start - start >= 16 or start == 0
+            assert stop - keep_stop >= 16 or stop == height
+
+
+def textured_pair(rng, shape, **scene):
+    pair = render_pair(rng, shape, **scene)
+    return pair
+
+
+@pytest.mark.parametrize("scene", [dict(background=(9.3, 0.0)), dict(background=(6.0, 0.03), foreground=(20.0, 0.0))])
+def test_recovers_rendered_disparity_across_bands(rng, scene):
+    pair = render_pair(rng, (96, 160), **scene)
+    other_band = 1.0 - (0.1 + 0.6 * pair.right**1.8)  # another filter: gamma, gain, inverted contrast
+    result = CADE(pair.left, other_band, max_disp=32)
+    error = np.abs(result.disparity - pair.disparity)[pair.reliable]
+    assert error.mean() < 1.0
+    assert result.valid[pair.reliable].mean() > 0.8
+
+
+def test_negative_range_by_pre_shifting(rng):
+    pair = render_pair(rng, (96, 160), background=(-11.6, 0.0))
+    result = CADE(pair.left, pair.right, min_disp=-24, max_disp=8)
+    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
+    assert result.disparity.min() >= -24 and result.disparity.max() <= 8
+
+
+def test_range_beyond_the_network_runs_on_a_pyramid_level(rng):
+    card = ModelCard.load()
+    pair = render_pair(rng, (128, 2 * card.max_disp + 96), background=(card.max_disp + 21.0, 0.0))
+    result = CADE(pair.left, pair.right, max_disp=card.max_disp + 40)
+    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 2.0
+
+
+def test_strips_give_the_same_map_as_one_pass(rng, monkeypatch):
+    pair = render_pair(rng, (200, 160), background=(7.0, 0.02), foreground=(15.0, 0.0))
+    whole = CADE(pair.left, pair.right, max_disp=24)
+    monkeypatch.setattr(learned, "STRIP_PIXELS", 160 * 140)
+    assert len(learned.strips(200, 160, max_pixels=learned.STRIP_PIXELS)) > 1
+    split = CADE(pair.left, pair.right, max_disp=24)
+    close = np.abs(split.disparity - whole.disparity) < 0.25
+    assert close[pair.reliable].mean() > 0.98
+
+
+def test_kernel_takes_cade_bands_and_output_is_dense(rng):
+    pair = render_pair(rng, (64, 96), background=(5.0, 0.0))
+    result = learned.CadeNetwork()(color_agnostic(pair.left), color_agnostic(pair.right), DisparityRange(0, 16))
+    assert result.disparity.dtype == np.float32 and np.isfinite(result.disparity).all()
+    assert result.valid.dtype == bool and result.valid.shape == pair.left.shape

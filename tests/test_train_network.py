@@ -1,0 +1,92 @@
+"""CadeNet, its training loop and its ONNX export (skipped where torch is not installed)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
+from cade_cli.train.fit import GeneratedBatches, TrainConfig, learning_rate, train  # noqa: E402
+from cade_cli.train.model import CadeNet, groupwise_correlation, parameter_count  # noqa: E402
+
+
+def test_groupwise_correlation_matches_a_loop_reference():
+    generator = torch.Generator().manual_seed(0)
+    left, right = torch.rand(2, 8, 5, 12, generator=generator), torch.rand(2, 8, 5, 12, generator=generator)
+    volume = groupwise_correlation(left, right, levels=4, groups=2)
+    assert volume.shape == (2, 2, 4, 5, 12)
+    for d in range(4):
+        for x in range(12):
+            for g in range(2):
+                channels = slice(4 * g, 4 * g + 4)
+                expected = (left[:, channels, :, x] * right[:, channels, :, x - d]).mean(1) if x >= d else 0.0
+                torch.testing.assert_close(volume[:, g, d, :, x], torch.as_tensor(expected).expand(2, 5).float())
+
+
+def test_network_shapes_and_range():
+    net = CadeNet(max_disp=32).eval()
+    with torch.no_grad():
+        out = net(torch.rand(1, 1, 48, 64), torch.rand(1, 1, 48, 64))
+    assert set(out) == {"disparity", "coarse", "uncertainty"}
+    assert all(value.shape == (1, 1, 48, 64) for value in out.values())
+    assert 0 <= out["coarse"].min() and out["coarse"].max() <= 32 - 4
+    assert parameter_count(net) < 200_000
+    with pytest.raises(ValueError, match="multiple of 8"):
+        CadeNet(max_disp=30)
+
+
+def test_batches_depend_only_on_seed_and_step():
+    config = TrainConfig(out="unused", textures=[], steps=10, batch=2, height=32, width=64, max_disp=16)
+    batches = GeneratedBatches(config)
+    first, again, other = batches[3], GeneratedBatches(config)[3], batches[4]
+    assert torch.equal(first["left"], again["left"]) and torch.equal(first["disparity"], again["disparity"])
+    assert not torch.equal(first["left"], other["left"])
+    assert first["left"].shape == (2, 1, 32, 64) and first["disparity"].max() < 16
+
+
+def test_learning_rate_warms_up_then_decays():
+    config = TrainConfig(out="unused", textures=[], steps=1000, warmup=100, lr=1e-3)
+    rates = [learning_rate(config, step) for step in range(1000)]
+    assert rates[0] < rates[99] == pytest.approx(1e-3)
+    assert rates[-1] == pytest.approx(5e-5, rel=0.05) and all(a >= b for a, b in zip(rates[100:], rates[101:]))
+
+
+def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=1, height=32, width=64,
+                         max_disp=16, workers=0, validate_every=2, checkpoint_every=2, stop_after=3)
+    checkpoint = train(config)
+    assert torch.load(checkpoint, weights_only=False)["step"] == 3
+    config.stop_after = None
+    train(config)
+    state = torch.load(checkpoint, weights_only=False)
+    assert state["step"] == 4
+    config.steps = 6
+    train(config)  # resumes at step 4
+    rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
+    validated = [int(row["step"]) for row in rows if row["set"] == "synthetic"]
+    assert validated == [2, 4, 6]
+    assert torch.load(checkpoint, weights_only=False)["step"] == 6
+
+    onnx_path = tmp_path / "tiny.onnx"
+    card = export_checkpoint(checkpoint, onnx_path, tmp_path / "tiny.json")
+    assert card["max_disp"] == 16 and card["divisor"] == 8 and card["steps"] == 6
+    assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
+    assert len(card["sha256"]) == 64
+
+
+def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
+    from cade_cli.train.export import export_onnx
+
+    net = CadeNet(max_disp=24).eval()
+    for module in net.modules():  # non-trivial batch-norm statistics
+        if isinstance(module, (torch.nn.BatchNorm2d, torch.nn.BatchNorm3d)):
+            module.running_mean.uniform_(-0.1, 0.1)
+            module.running_var.uniform_(0.5, 1.5)
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path)
+    assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3

@@ -1,0 +1,113 @@
+"""The training-data generator's ground truth is exact (no torch needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cade_cli import spectral
+from cade_cli.errors import CadeError
+from cade_cli.train import pairs
+from cade_cli.train.pairs import cade_pair
+from cade_cli.train.scenes import NO_PHOTOMETRIC, TexturePool, procedural_texture, render_scene
+
+
+def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    height, width = disparity.shape
+    rows, columns = np.mgrid[0:height, 0:width].astype(np.float32)
+    return cv2.remap(right, columns - disparity, rows, cv2.INTER_LINEAR)
+
+
+def depth_edges(disparity: np.ndarray, radius: int = 2) -> np.ndarray:
+    """Pixels within ``radius`` of a disparity jump (> 0.5 px between neighbours)."""
+    jump = np.zeros(disparity.shape, bool)
+    jump[:, 1:] |= np.abs(np.diff(disparity, axis=1)) > 0.5
+    jump[1:, :] |= np.abs(np.diff(disparity, axis=0)) > 0.5
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    return cv2.dilate(jump.astype(np.uint8), kernel).astype(bool)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_warping_right_with_ground_truth_reproduces_left(seed):
+    scene = render_scene(np.random.default_rng(seed), 96, 160, max_disp=48, textures=TexturePool(),
+                         photometric=NO_PHOTOMETRIC)
+    warped = warp_right_to_left(scene.right, scene.disparity)
+    error = np.abs(warped - scene.left).max(axis=2)
+    # Object outlines are aliased (hard masks), so their rims differ by up to a pixel.
+    checked = scene.nonoccluded & ~depth_edges(scene.disparity) & ~depth_edges(
+        np.where(scene.nonoccluded, 0.0, 1.0).astype(np.float32))
+    assert checked.mean() > 0.3
+    assert np.median(error[checked]) < 0.01
+    assert (error[checked] < 0.05).mean() > 0.97
+    # The check has teeth: the same warp without the disparity does not reproduce it.
+    unshifted = np.abs(scene.right - scene.left).max(axis=2)
+    assert (unshifted[checked] < 0.05).mean() < 0.9
+
+
+def test_occluded_pixels_are_not_seen_by_the_right_view():
+    scene = render_scene(np.random.default_rng(3), 96, 160, max_disp=48, textures=TexturePool(),
+                         photometric=NO_PHOTOMETRIC)
+    occluded = ~scene.nonoccluded & ~depth_edges(scene.disparity)
+    assert occluded.any()
+    error = np.abs(warp_right_to_left(scene.right, scene.disparity) - scene.left).max(axis=2)
+    # The right view shows another surface there, so the warp mostly disagrees.
+    assert np.median(error[occluded]) > np.median(error[scene.nonoccluded & ~depth_edges(scene.disparity)])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_disparities_cover_the_range_and_stay_inside_it(seed):
+    rng = np.random.default_rng(seed)
+    values = np.concatenate([render_scene(rng, 64, 128, max_disp=40, textures=TexturePool()).disparity.ravel()
+                             for _ in range(5)])
+    assert values.min() >= 0 and values.max() < 40
+    assert values.max() - values.min() > 10
+
+
+def test_same_seed_same_scene_and_views_differ_photometrically():
+    a = render_scene(np.random.default_rng(7), 64, 96, max_disp=32, textures=TexturePool())
+    b = render_scene(np.random.default_rng(7), 64, 96, max_disp=32, textures=TexturePool())
+    assert np.array_equal(a.left, b.left) and np.array_equal(a.disparity, b.disparity)
+    assert a.left.dtype == np.float32 and a.left.shape == (64, 96, 3)
+    assert 0.0 <= a.left.min() and a.left.max() <= 1.0
+
+
+def test_texture_pool_reads_image_folders(tmp_path: Path):
+    image = (np.random.default_rng(0).random((40, 50, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(str(tmp_path / "t.png"), image)
+    pool = TexturePool([tmp_path], procedural_share=0.0)
+    texture = pool.draw(np.random.default_rng(0))
+    assert texture.dtype == np.float32 and texture.ndim == 3 and texture.max() <= 1.0
+    with pytest.raises(CadeError, match="not found"):
+        TexturePool([tmp_path / "missing"])
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_procedural_textures_are_rgb_in_unit_range(seed):
+    texture = procedural_texture(np.random.default_rng(seed), 64)
+    assert texture.shape == (64, 64, 3) and texture.dtype == np.float32
+    assert 0.0 <= texture.min() and texture.max() <= 1.0
+
+
+def test_cade_pairs_use_the_runtime_transform_and_band_synthesis():
+    assert pairs.color_agnostic is spectral.color_agnostic
+    assert pairs.synthesize_bands is spectral.synthesize_bands
+    scene = render_scene(np.random.default_rng(1), 64, 96, max_disp=32, textures=TexturePool())
+    pair = cade_pair(scene, np.random.default_rng(2))
+    assert set(pair.bands) <= set(spectral.BAND_NAMES)
+    # Recompute: same seed draw, same bands, same transform.
+    rng = np.random.default_rng(2)
+    seed = int(rng.integers(2**63))
+    left_name, right_name = pair.bands
+    expected = spectral.color_agnostic(spectral.synthesize_bands(scene.left, np.random.default_rng(seed))[left_name])
+    np.testing.assert_array_equal(pair.left, expected)
+    assert pair.left.dtype == np.float32 and 0.0 <= pair.right.min() and pair.right.max() <= 1.0
+
+
+def test_cade_pairs_draw_left_and_right_bands_independently():
+    scene = render_scene(np.random.default_rng(1), 32, 48, max_disp=16, textures=TexturePool())
+    drawn = [cade_pair(scene, np.random.default_rng(i)).bands for i in range(60)]
+    assert len({left for left, _ in drawn}) > 5 and len({right for _, right in drawn}) > 5
+    assert sum(left != right for left, right in drawn) > 40
