@@ -35,12 +35,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(0)
-    small = rng.random((args.height // 4, (args.width + int(args.disparity) + 8) // 4)).astype(np.float32)
+    small = rng.random((args.height // 12, (args.width + int(args.disparity) + 8) // 12)).astype(np.float32)
     texture = cv2.resize(small, (args.width + int(args.disparity) + 8, args.height), interpolation=cv2.INTER_CUBIC)
     texture = cv2.normalize(texture, None, 0, 1, cv2.NORM_MINMAX)
     shift = int(args.disparity)
-    left = texture[:, shift:shift + args.width]
-    right = texture[:, :args.width] ** 2.2  # I_left(x) = I_right(x - d), another "filter"
+    left = texture[:, :args.width]
+    right = texture[:, shift:shift + args.width] ** 2.2  # I_left(x) = I_right(x - d), another "filter"
     with tempfile.TemporaryDirectory() as folder:
         paths = [Path(folder) / name for name in ("left.png", "right.png", "disp.pfm")]
         for path, band in zip(paths, (left, right)):
