@@ -15,7 +15,6 @@ dataset touches no network. The library never prints: pass a ``rich.progress.Pro
 
 from __future__ import annotations
 
-import hashlib
 import http.client
 import os
 import re
@@ -34,6 +33,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from cade_cli import __version__
+from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError, lookup
 
 if TYPE_CHECKING:
@@ -594,17 +594,9 @@ def _kind(path: Path) -> str:
     raise CadeError(f"{path.name} is neither a zip nor a tar archive; cade cannot unpack it")
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        while chunk := stream.read(CHUNK_BYTES):
-            digest.update(chunk)
-    return digest.hexdigest()
-
-
 def _corruption(path: Path, sha256: str | None) -> str | None:
     """Why ``path`` is not a sound archive (None: it is). Reads every member through."""
-    if sha256 is not None and _sha256(path) != sha256.lower():
+    if sha256 is not None and file_sha256(path) != sha256.lower():
         return "sha256 differs from the published one"
     try:
         if _kind(path) == "zip":

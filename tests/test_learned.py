@@ -82,11 +82,6 @@ def test_strips_tile_the_rows_within_the_pixel_budget(height, width, max_pixels)
             assert stop - keep_stop >= 16 or stop == height
 
 
-def textured_pair(rng, shape, **scene):
-    pair = render_pair(rng, shape, **scene)
-    return pair
-
-
 @pytest.mark.parametrize("scene", [dict(background=(9.3, 0.0)), dict(background=(6.0, 0.03), foreground=(20.0, 0.0))])
 def test_recovers_rendered_disparity_across_bands(rng, scene):
     pair = render_pair(rng, (96, 160), **scene)

@@ -18,7 +18,6 @@ color-agnostic bands whose sides are multiples of its divisor and searches dispa
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
 
@@ -74,7 +74,7 @@ def _session(path: Path, sha256: str):
     """One onnxruntime session per model file, built once after checking its sha256."""
     if not path.is_file():
         raise CadeError(f"model file {path} not found; set {MODEL_DIR_ENV} to the folder holding it")
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    digest = file_sha256(path)
     if digest != sha256:
         raise CadeError(f"model file {path} has sha256 {digest[:12]}..., its card says {sha256[:12]}...; "
                         f"the file is damaged or not the one the card describes")

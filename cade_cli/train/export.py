@@ -8,7 +8,6 @@ uncertainty in pixels. Height and width are dynamic.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cade_cli.checksum import file_sha256
 from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
 
 OPSET = 17
@@ -62,14 +62,6 @@ def verify_onnx(net: CadeNet, path: Path, *, sizes=((96, 128), (200, 328)), seed
     return worst
 
 
-def sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None) -> dict:
     """Export, verify against PyTorch, and write the JSON card the runtime reads."""
     net, state = load_checkpoint(checkpoint)
@@ -78,7 +70,7 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
     card = {
         "name": onnx_path.stem,
         "file": onnx_path.name,
-        "sha256": sha256(onnx_path),
+        "sha256": file_sha256(onnx_path),
         "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
                         "-> soft-argmin -> full-res refinement",
         "parameters": parameter_count(net),

@@ -127,12 +127,11 @@ def validation_sets(config: TrainConfig) -> dict[str, list[tuple[np.ndarray, np.
     sets = {"synthetic": synthetic}
     if config.data_dir and Path(config.data_dir).is_dir():
         from cade_cli.datasets import get_dataset
+        from cade_cli.matching.learned import RANGE_MARGIN, pyramid_factor
 
         middlebury = []
         for scene in get_dataset("middlebury14")(Path(config.data_dir), resolution="Q"):
-            scale = 1
-            while scene.max_disp / scale > config.max_disp - 8:
-                scale *= 2
+            scale = pyramid_factor(scene.max_disp, config.max_disp - RANGE_MARGIN)  # as the runtime does
             size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
             left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
             gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
