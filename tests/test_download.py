@@ -286,11 +286,19 @@ def test_only_what_is_missing_is_fetched_and_force_fetches_again(server, tmp_pat
     assert (tmp_path / "middlebury2005" / "Art" / "view1.png").read_bytes() == b"Art view1.png " * 20
 
 
+def place_download(root: Path, filename: str, data: bytes) -> Path:
+    """Put ``data`` in ``root``'s downloads folder as ``filename`` (a finished or
+    partial archive left by an earlier run); return that folder."""
+    downloads = root / DOWNLOADS_FOLDER
+    downloads.mkdir(exist_ok=True)
+    (downloads / filename).write_bytes(data)
+    return downloads
+
+
 def test_a_complete_archive_on_disk_is_unpacked_without_downloading(server, tmp_path):
     root, base, httpd = server
     payload = serve_middlebury05(root, ("Art",))["Art"]
-    (tmp_path / DOWNLOADS_FOLDER).mkdir()
-    (tmp_path / DOWNLOADS_FOLDER / "Art-2views-ThirdSize.zip").write_bytes(payload)
+    place_download(tmp_path, "Art-2views-ThirdSize.zip", payload)
     report = download_dataset("middlebury05", tmp_path, scenes=["Art"], base_url=base)
     assert report.downloaded == () and report.extracted == ("Art-2views-ThirdSize.zip",)
     assert httpd.requests == [] and (tmp_path / "middlebury2005" / "Art" / "view5.png").is_file()
@@ -301,9 +309,7 @@ def test_a_complete_archive_on_disk_is_unpacked_without_downloading(server, tmp_
 def test_a_part_file_is_resumed_with_range(server, tmp_path):
     root, base, httpd = server
     payload = serve_middlebury05(root, ("Art",))["Art"]
-    downloads = tmp_path / DOWNLOADS_FOLDER
-    downloads.mkdir()
-    (downloads / "Art-2views-ThirdSize.zip.part").write_bytes(payload[:300])
+    downloads = place_download(tmp_path, "Art-2views-ThirdSize.zip.part", payload[:300])
     report = download_dataset("middlebury05", tmp_path, scenes=["Art"], base_url=base, keep_archives=True)
     assert httpd.requests[-1][1] == "bytes=300-"
     assert report.bytes_downloaded == len(payload) - 300
@@ -331,9 +337,7 @@ def test_a_server_ignoring_range_restarts_from_zero(server, tmp_path):
     root, base, httpd = server
     payload = serve_middlebury05(root, ("Art",))["Art"]
     httpd.honour_range = False
-    downloads = tmp_path / DOWNLOADS_FOLDER
-    downloads.mkdir()
-    (downloads / "Art-2views-ThirdSize.zip.part").write_bytes(b"x" * 200)  # would corrupt an append
+    downloads = place_download(tmp_path, "Art-2views-ThirdSize.zip.part", b"x" * 200)  # would corrupt an append
     report = download_dataset("middlebury05", tmp_path, scenes=["Art"], base_url=base, keep_archives=True)
     assert httpd.requests[-1][1] == "bytes=200-" and report.bytes_downloaded == len(payload)
     assert (downloads / "Art-2views-ThirdSize.zip").read_bytes() == payload
@@ -342,8 +346,7 @@ def test_a_server_ignoring_range_restarts_from_zero(server, tmp_path):
 def test_a_complete_part_answered_416_is_used(server, tmp_path):
     root, base, httpd = server
     payload = serve_middlebury05(root, ("Art",))["Art"]
-    (tmp_path / DOWNLOADS_FOLDER).mkdir()
-    (tmp_path / DOWNLOADS_FOLDER / "Art-2views-ThirdSize.zip.part").write_bytes(payload)
+    place_download(tmp_path, "Art-2views-ThirdSize.zip.part", payload)
     report = download_dataset("middlebury05", tmp_path, scenes=["Art"], base_url=base)
     assert report.bytes_downloaded == 0 and (tmp_path / "middlebury2005" / "Art" / "view1.png").is_file()
 
