@@ -23,21 +23,38 @@ CADE = MATCHERS["cade"]
 
 def test_shipped_model_matches_its_card():
     card = ModelCard.load()
-    assert card.path.is_file() and card.max_disp % card.divisor == 0
-    learned._session(card.path, card.sha256)  # verifies the sha256
+    assert len(card.variants) >= 2
+    for variant in card.variants:
+        assert variant.path.is_file() and variant.max_disp % card.divisor == 0
+        learned._session(variant.path, variant.sha256)  # verifies the sha256
 
 
 def test_a_damaged_model_is_refused(tmp_path: Path, monkeypatch):
     card = ModelCard.load()
-    shutil.copy(card.path, tmp_path / card.path.name)
-    with open(tmp_path / card.path.name, "r+b") as stream:
+    for variant in card.variants:
+        shutil.copy(variant.path, tmp_path / variant.path.name)
+    narrowest = tmp_path / card.variants[0].path.name
+    with open(narrowest, "r+b") as stream:
         stream.seek(-10, 2)
         stream.write(b"0123456789")
-    shutil.copy(card.path.with_suffix(".json"), tmp_path)
+    shutil.copy(model_dir_card(), tmp_path)
     monkeypatch.setenv(learned.MODEL_DIR_ENV, str(tmp_path))
     band = np.random.default_rng(0).random((32, 48)).astype(np.float32)
     with pytest.raises(CadeError, match="sha256"):
         CADE(band, band, max_disp=8)
+
+
+def model_dir_card() -> Path:
+    return learned.model_dir() / f"{learned.MODEL_NAME}.json"
+
+
+def test_variant_choice_prefers_full_resolution_then_the_narrowest_search():
+    card = ModelCard([learned.ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 192)], 8)
+    margin = learned.RANGE_MARGIN
+    chosen = {span: (variant.max_disp, factor) for span in (10, 120, 121, 184, 185, 248, 249, 600)
+              for variant, factor in [card.variant_for(span)]}
+    assert margin == 8 and chosen == {10: (128, 1), 120: (128, 1), 121: (192, 1), 184: (192, 1), 185: (256, 1),
+                                      248: (256, 1), 249: (192, 2), 600: (192, 4)}
 
 
 def test_a_missing_card_names_the_environment_variable(tmp_path: Path, monkeypatch):
@@ -45,7 +62,7 @@ def test_a_missing_card_names_the_environment_variable(tmp_path: Path, monkeypat
     band = np.zeros((32, 48), np.float32)
     with pytest.raises(CadeError, match=learned.MODEL_DIR_ENV):
         CADE(band, band, max_disp=8)
-    (tmp_path / "cade-v1.json").write_text(json.dumps({"file": "x.onnx"}))
+    (tmp_path / f"{learned.MODEL_NAME}.json").write_text(json.dumps({"file": "x.onnx"}))
     with pytest.raises(CadeError, match="malformed"):
         CADE(band, band, max_disp=8)
 
@@ -99,10 +116,22 @@ def test_negative_range_by_pre_shifting(rng):
     assert result.disparity.min() >= -24 and result.disparity.max() <= 8
 
 
-def test_range_beyond_the_network_runs_on_a_pyramid_level(rng):
+def test_wide_variant_runs_at_full_resolution(rng, monkeypatch):
     card = ModelCard.load()
-    pair = render_pair(rng, (128, 2 * card.max_disp + 96), background=(card.max_disp + 21.0, 0.0))
-    result = CADE(pair.left, pair.right, max_disp=card.max_disp + 40)
+    narrow, wide = card.variants[0].max_disp, card.variants[1].max_disp
+    pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))
+    chosen = []
+    choose = ModelCard.variant_for
+    monkeypatch.setattr(ModelCard, "variant_for", lambda self, span: chosen.append(choose(self, span)) or chosen[-1])
+    result = CADE(pair.left, pair.right, max_disp=wide - learned.RANGE_MARGIN)
+    assert [(variant.max_disp, factor) for variant, factor in chosen] == [(wide, 1)]
+    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
+
+
+def test_range_beyond_the_network_runs_on_a_pyramid_level(rng):
+    widest = ModelCard.load().variants[-1].max_disp
+    pair = render_pair(rng, (128, 2 * widest + 96), background=(widest + 21.0, 0.0))
+    result = CADE(pair.left, pair.right, max_disp=widest + 40)
     assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 2.0
 
 

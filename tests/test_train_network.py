@@ -74,9 +74,11 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
 
     onnx_path = tmp_path / "tiny.onnx"
     card = export_checkpoint(checkpoint, onnx_path, tmp_path / "tiny.json")
-    assert card["max_disp"] == 16 and card["divisor"] == 8 and card["steps"] == 6
+    assert card["trained_max_disp"] == 16 and card["divisor"] == 8 and card["steps"] == 6
+    assert [v["max_disp"] for v in card["variants"]] == [16, 192, 256]
+    assert [v["file"] for v in card["variants"]] == ["tiny.onnx", "tiny-192.onnx", "tiny-256.onnx"]
+    assert all(len(v["sha256"]) == 64 for v in card["variants"])
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
-    assert len(card["sha256"]) == 64
 
 
 def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):

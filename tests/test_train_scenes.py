@@ -12,7 +12,7 @@ from cade_cli import spectral
 from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
-from cade_cli.train.scenes import NO_PHOTOMETRIC, TexturePool, procedural_texture, render_scene
+from cade_cli.train.scenes import NO_PHOTOMETRIC, TexturePool, procedural_texture, random_shape, render_scene
 
 
 def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
@@ -36,12 +36,13 @@ def test_warping_right_with_ground_truth_reproduces_left(seed):
                          photometric=NO_PHOTOMETRIC)
     warped = warp_right_to_left(scene.right, scene.disparity)
     error = np.abs(warped - scene.left).max(axis=2)
-    # Object outlines are aliased (hard masks), so their rims differ by up to a pixel.
+    # Object outlines are aliased (hard masks), so their rims differ by up to a pixel; and
+    # stripes of a 3-4 px period, resampled bilinearly at other sub-pixel phases, differ a little.
     checked = scene.nonoccluded & ~depth_edges(scene.disparity) & ~depth_edges(
         np.where(scene.nonoccluded, 0.0, 1.0).astype(np.float32))
     assert checked.mean() > 0.3
     assert np.median(error[checked]) < 0.01
-    assert (error[checked] < 0.05).mean() > 0.97
+    assert (error[checked] < 0.05).mean() > 0.95
     # The check has teeth: the same warp without the disparity does not reproduce it.
     unshifted = np.abs(scene.right - scene.left).max(axis=2)
     assert (unshifted[checked] < 0.05).mean() < 0.9
@@ -111,3 +112,22 @@ def test_cade_pairs_draw_left_and_right_bands_independently():
     drawn = [cade_pair(scene, np.random.default_rng(i)).bands for i in range(60)]
     assert len({left for left, _ in drawn}) > 5 and len({right for _, right in drawn}) > 5
     assert sum(left != right for left, right in drawn) > 40
+
+
+def test_shapes_include_thin_structures_and_holes():
+    """Real scenes have stems, cables and fences, not only blobs: among many outlines some are
+    mostly thinner than 5 px (an opening with a 5x5 square removes most of them) and some
+    have holes (pixels outside the shape enclosed by it)."""
+    y, x = np.mgrid[0:192, 0:320].astype(np.float32)
+    rng = np.random.default_rng(0)
+    thin = holed = 0
+    for _ in range(200):
+        mask = random_shape(rng, 192, 320)(x, y).astype(np.uint8)
+        if mask.sum() < 50 or mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+            continue
+        opened = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+        thin += opened.sum() < 0.5 * mask.sum()
+        outside = 1 - mask
+        count, _ = cv2.connectedComponents(outside, connectivity=4)
+        holed += count > 2  # the background plus at least one enclosed hole
+    assert thin >= 10 and holed >= 2

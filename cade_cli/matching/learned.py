@@ -2,12 +2,14 @@
 
 The network (trained by :mod:`cade_cli.train`, never imported here) takes two
 color-agnostic bands whose sides are multiples of its divisor and searches disparities
-0 .. ``max_disp`` - 1 of its card. Around it this module:
+0 .. ``max_disp`` - 1. Its card lists several exports of the same weights that differ
+only in ``max_disp`` (the trained range and wider ones). Around it this module:
 
 * pre-shifts the right band by the requested minimum disparity, so any range
   [min, max] (negative minimum included) becomes [0, max - min];
-* when that span exceeds what the network searches, runs on a downscaled pair
-  (factor 2, 4, ...) and upsamples, rescaling disparity;
+* runs the narrowest variant that searches that span at full resolution; when even
+  the widest cannot, runs it on a downscaled pair (factor 2, 4, ...) and upsamples,
+  rescaling disparity;
 * pads to the divisor (replicating the border) and crops back;
 * splits tall images into overlapping horizontal strips, so memory stays bounded
   (disparity is horizontal: a strip holds everything its rows need);
@@ -30,7 +32,7 @@ from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
 
-MODEL_NAME = "cade-v1"
+MODEL_NAME = "cade-v2"
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 MAX_UNCERTAINTY = 3.0
 """Pixels whose soft-argmin distribution has a standard deviation above this (px, at the
@@ -50,10 +52,17 @@ def model_dir() -> Path:
 
 
 @dataclass(frozen=True)
-class ModelCard:
+class ModelVariant:
+    """One ONNX export: the weights searching disparities 0 .. ``max_disp`` - 1."""
+
     path: Path
     sha256: str
     max_disp: int
+
+
+@dataclass(frozen=True)
+class ModelCard:
+    variants: tuple[ModelVariant, ...]
     divisor: int
 
     @classmethod
@@ -64,9 +73,19 @@ class ModelCard:
             raise CadeError(f"model card {card_path} not found; set {MODEL_DIR_ENV} to the folder holding {name}.onnx")
         try:
             card = json.loads(card_path.read_text())
-            return cls(folder / card["file"], card["sha256"], int(card["max_disp"]), int(card["divisor"]))
+            variants = tuple(ModelVariant(folder / v["file"], v["sha256"], int(v["max_disp"])) for v in card["variants"])
+            if not variants:
+                raise ValueError("no variants")
+            return cls(variants, int(card["divisor"]))
         except (ValueError, KeyError, TypeError) as error:
             raise CadeError(f"model card {card_path} is malformed: {error}") from None
+
+    def variant_for(self, span: int) -> tuple[ModelVariant, int]:
+        """The variant and pyramid factor for a disparity ``span``: the least downscaling
+        first, then the narrowest search (the fastest, and the range it was trained on)."""
+        factor, _, variant = min((pyramid_factor(span, v.max_disp - RANGE_MARGIN), v.max_disp, v)
+                                 for v in self.variants)
+        return variant, factor
 
 
 @functools.lru_cache(maxsize=4)
@@ -191,10 +210,9 @@ class CadeNetwork:
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
         card = ModelCard.load(self.name)
-        session = _session(card.path, card.sha256)
+        variant, factor = card.variant_for(disparity_range.count - 1)
+        session = _session(variant.path, variant.sha256)
         height, width = left.shape
-        span = disparity_range.count - 1
-        factor = pyramid_factor(span, card.max_disp - RANGE_MARGIN)
         right = shift_right_view(right, disparity_range.minimum)
         if factor > 1:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))

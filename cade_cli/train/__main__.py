@@ -33,6 +33,9 @@ def fit(
     validate_every: Annotated[int, typer.Option(min=1)] = 500,
     stop_after: Annotated[int | None, typer.Option(min=1, help="Stop (checkpointed) after this step.")] = None,
     resume: Annotated[bool, typer.Option(help="Continue from OUT/last.pt when it exists.")] = True,
+    init: Annotated[Path | None, typer.Option(exists=True, dir_okay=False,
+                                              help="Fine-tune: start a new run from this checkpoint's weights.")] = None,
+    warmup: Annotated[int, typer.Option(min=0, help="Linear warm-up steps.")] = 200,
 ) -> None:
     """Train (or resume) a run."""
     from cade_cli.train.fit import TrainConfig, train
@@ -40,23 +43,28 @@ def fit(
     config = TrainConfig(out=str(out), textures=[str(t) for t in textures],
                          data_dir=str(data_dir) if data_dir else None, steps=steps, batch=batch, height=height,
                          width=width, max_disp=max_disp, lr=lr, seed=seed, device=device, threads=threads,
-                         workers=workers, validate_every=validate_every, stop_after=stop_after)
+                         workers=workers, validate_every=validate_every, stop_after=stop_after,
+                         init=str(init) if init else None, warmup=warmup)
     train(config, resume=resume)
 
 
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt.")],
-    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v1.onnx"),
+    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v2.onnx"),
     hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
 ) -> None:
-    """Export CHECKPOINT to ONNX, verify it against PyTorch, write the JSON card beside it."""
+    """Export CHECKPOINT to ONNX (the trained range and the wider variants), verify each
+    against PyTorch, write the JSON card beside them."""
     from cade_cli.train.export import export_checkpoint
 
     card = export_checkpoint(checkpoint, onnx_path, onnx_path.with_suffix(".json"),
                              extra={"hardware": hardware} if hardware else None)
-    print(f"wrote {onnx_path} ({onnx_path.stat().st_size / 1e6:.2f} MB), sha256 {card['sha256']}; "
-          f"max |ONNX - PyTorch| = {card['onnx_vs_torch_max_abs_diff']:.2e} px")
+    for variant in card["variants"]:
+        path = onnx_path.with_name(variant["file"])
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, range {variant['max_disp']}), "
+              f"sha256 {variant['sha256']}")
+    print(f"max |ONNX - PyTorch| = {card['onnx_vs_torch_max_abs_diff']:.2e} px")
 
 
 if __name__ == "__main__":

@@ -23,9 +23,15 @@ INPUT_NAMES = ["left", "right"]
 OUTPUT_NAMES = ["disparity", "uncertainty"]
 
 
-def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
+WIDE_RANGES = (192, 256)
+"""Besides the trained range, each export also writes the same weights searching these
+ranges, so the runtime keeps full resolution for wide scenes instead of downscaling."""
+
+
+def load_checkpoint(path: Path, max_disp: int | None = None) -> tuple[CadeNet, dict]:
+    """The checkpoint's net, searching ``max_disp`` (default: the range it was trained on)."""
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = CadeNet(state["config"]["max_disp"])
+    net = CadeNet(max_disp or state["config"]["max_disp"])
     net.load_state_dict(state["model"])
     return net.eval(), state
 
@@ -62,19 +68,27 @@ def verify_onnx(net: CadeNet, path: Path, *, sizes=((96, 128), (200, 328)), seed
     return worst
 
 
-def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None) -> dict:
-    """Export, verify against PyTorch, and write the JSON card the runtime reads."""
+def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None,
+                      wide_ranges: tuple[int, ...] = WIDE_RANGES) -> dict:
+    """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
+
+    The trained range goes to ``onnx_path``; a wider range R to ``<stem>-R.onnx`` beside it."""
     net, state = load_checkpoint(checkpoint)
-    export_onnx(net, onnx_path)
-    max_difference = verify_onnx(net, onnx_path)
+    ranges = [net.max_disp] + sorted(r for r in set(wide_ranges) if r > net.max_disp)
+    variants, max_difference = [], 0.0
+    for max_disp in ranges:
+        variant_net = net if max_disp == net.max_disp else load_checkpoint(checkpoint, max_disp)[0]
+        path = onnx_path if max_disp == net.max_disp else onnx_path.with_name(f"{onnx_path.stem}-{max_disp}.onnx")
+        export_onnx(variant_net, path)
+        max_difference = max(max_difference, verify_onnx(variant_net, path))
+        variants.append({"max_disp": max_disp, "file": path.name, "sha256": file_sha256(path)})
     card = {
         "name": onnx_path.stem,
-        "file": onnx_path.name,
-        "sha256": file_sha256(onnx_path),
         "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
                         "-> soft-argmin -> full-res refinement",
         "parameters": parameter_count(net),
-        "max_disp": net.max_disp,
+        "trained_max_disp": net.max_disp,
+        "variants": variants,
         "divisor": DIVISOR,
         "inputs": INPUT_NAMES,
         "outputs": OUTPUT_NAMES,

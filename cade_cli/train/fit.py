@@ -44,6 +44,8 @@ class TrainConfig:
     coarse_weight: float = 0.5
     stop_after: int | None = None
     """Leave the loop after this step (checkpointed) although the schedule runs to ``steps``."""
+    init: str | None = None
+    """Start from this checkpoint's weights (fine-tuning: new optimizer, new schedule from step 0)."""
 
 
 class GeneratedBatches(torch.utils.data.Dataset):
@@ -167,6 +169,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         optimizer.load_state_dict(state["optimizer"])
         start, elapsed_before = state["step"], state["elapsed_s"]
         torch.set_rng_state(state["torch_rng"])
+    elif config.init:
+        net.load_state_dict(torch.load(config.init, map_location=config.device, weights_only=False)["model"])
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log_path = out / "log.csv"
     new_log = not log_path.exists() or start == 0

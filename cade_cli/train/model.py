@@ -21,6 +21,8 @@ from torch import nn
 
 DIVISOR = 8
 """Input height and width must be multiples of this (1/4 features, one more stride-2 3D level)."""
+DISPARITY_SCALE = 128.0
+"""Disparity is divided by this before it enters the refinement net, whatever the searched range."""
 
 
 def conv2d(cin: int, cout: int, *, stride: int = 1, dilation: int = 1, act: bool = True) -> nn.Sequential:
@@ -117,6 +119,9 @@ class Refinement(nn.Module):
 class CadeNet(nn.Module):
     """Stereo network on color-agnostic bands.
 
+    No weight depends on the searched range (the 3D convolutions slide along disparity),
+    so one trained state dict can be loaded into nets of several ``max_disp``.
+
     Args:
         max_disp: disparities searched at full resolution are 0 .. max_disp - 4 in steps
             of 4 at the 1/4 level (max_disp must be a multiple of 8).
@@ -147,7 +152,7 @@ class CadeNet(nn.Module):
         coarse = 4.0 * F.interpolate(mean, size=size, mode="bilinear", align_corners=False)
         uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear",
                                           align_corners=False)
-        disparity = self.refinement(coarse, left, float(self.max_disp))
+        disparity = self.refinement(coarse, left, DISPARITY_SCALE)
         return {"disparity": disparity, "coarse": coarse, "uncertainty": uncertainty}
 
 
