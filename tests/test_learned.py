@@ -122,7 +122,12 @@ def test_wide_variant_runs_at_full_resolution(rng, monkeypatch):
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))
     chosen = []
     choose = ModelCard.variant_for
-    monkeypatch.setattr(ModelCard, "variant_for", lambda self, span: chosen.append(choose(self, span)) or chosen[-1])
+
+    def recording(self, span):
+        chosen.append(choose(self, span))
+        return chosen[-1]
+
+    monkeypatch.setattr(ModelCard, "variant_for", recording)
     result = CADE(pair.left, pair.right, max_disp=wide - learned.RANGE_MARGIN)
     assert [(variant.max_disp, factor) for variant, factor in chosen] == [(wide, 1)]
     assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0

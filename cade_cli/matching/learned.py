@@ -38,7 +38,8 @@ MAX_UNCERTAINTY = 3.0
 """Pixels whose soft-argmin distribution has a standard deviation above this (px, at the
 resolution the network ran) are reported invalid."""
 STRIP_PIXELS = 1_500_000
-"""Largest padded strip (pixels) given to the network at once; bounds memory (about 1 GB)."""
+"""Largest padded strip (pixels) given to the network at once; bounds memory (the cost
+volume grows with the variant's range: about 1 GB at 128 levels, 2.3 GB at 256)."""
 STRIP_OVERLAP = 32
 """Rows shared by neighbouring strips; each keeps the half nearer its own centre."""
 RANGE_MARGIN = 8
@@ -83,9 +84,11 @@ class ModelCard:
     def variant_for(self, span: int) -> tuple[ModelVariant, int]:
         """The variant and pyramid factor for a disparity ``span``: the least downscaling
         first, then the narrowest search (the fastest, and the range it was trained on)."""
-        factor, _, variant = min((pyramid_factor(span, v.max_disp - RANGE_MARGIN), v.max_disp, v)
-                                 for v in self.variants)
-        return variant, factor
+        def factor(variant: ModelVariant) -> int:
+            return pyramid_factor(span, variant.max_disp - RANGE_MARGIN)
+
+        best = min(self.variants, key=lambda variant: (factor(variant), variant.max_disp))
+        return best, factor(best)
 
 
 @functools.lru_cache(maxsize=4)

@@ -28,12 +28,20 @@ WIDE_RANGES = (192, 256)
 ranges, so the runtime keeps full resolution for wide scenes instead of downscaling."""
 
 
-def load_checkpoint(path: Path, max_disp: int | None = None) -> tuple[CadeNet, dict]:
-    """The checkpoint's net, searching ``max_disp`` (default: the range it was trained on)."""
+def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = CadeNet(max_disp or state["config"]["max_disp"])
+    net = CadeNet(state["config"]["max_disp"])
     net.load_state_dict(state["model"])
     return net.eval(), state
+
+
+def with_range(net: CadeNet, max_disp: int) -> CadeNet:
+    """The same weights searching ``max_disp`` (no weight depends on the range)."""
+    if max_disp == net.max_disp:
+        return net
+    wide = CadeNet(max_disp)
+    wide.load_state_dict(net.state_dict())
+    return wide.eval()
 
 
 def export_onnx(net: CadeNet, path: Path, *, sample_size: tuple[int, int] = (192, 256)) -> None:
@@ -74,11 +82,11 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
 
     The trained range goes to ``onnx_path``; a wider range R to ``<stem>-R.onnx`` beside it."""
     net, state = load_checkpoint(checkpoint)
-    ranges = [net.max_disp] + sorted(r for r in set(wide_ranges) if r > net.max_disp)
+    targets = [(net.max_disp, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
+                                             for r in sorted(set(wide_ranges)) if r > net.max_disp]
     variants, max_difference = [], 0.0
-    for max_disp in ranges:
-        variant_net = net if max_disp == net.max_disp else load_checkpoint(checkpoint, max_disp)[0]
-        path = onnx_path if max_disp == net.max_disp else onnx_path.with_name(f"{onnx_path.stem}-{max_disp}.onnx")
+    for max_disp, path in targets:
+        variant_net = with_range(net, max_disp)
         export_onnx(variant_net, path)
         max_difference = max(max_difference, verify_onnx(variant_net, path))
         variants.append({"max_disp": max_disp, "file": path.name, "sha256": file_sha256(path)})
