@@ -20,6 +20,7 @@ class SyntheticPair:
     right: np.ndarray      # (H, W) float32
     disparity: np.ndarray  # (H, W) float32, left view
     reliable: np.ndarray   # (H, W) bool: visible in both views, away from edges and borders
+    occluded: np.ndarray   # (H, W) bool: background pixels the foreground hides in the right view
 
 
 def smooth_texture(rng: np.random.Generator, shape: tuple[int, int], sigma: float = 1.5) -> np.ndarray:
@@ -89,4 +90,4 @@ def render_pair(
                        np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)).astype(bool)
     reliable = ~edges & (columns >= float(np.ceil(disparity.max())) + margin) & (columns < width - margin)
     reliable &= (rows >= margin) & (rows < height - margin)
-    return SyntheticPair(left.astype(np.float32), right.astype(np.float32), disparity, reliable)
+    return SyntheticPair(left.astype(np.float32), right.astype(np.float32), disparity, reliable, occluded)

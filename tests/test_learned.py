@@ -49,12 +49,12 @@ def model_dir_card() -> Path:
 
 
 def test_variant_choice_prefers_full_resolution_then_the_narrowest_search():
-    card = ModelCard([learned.ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 192)], 8)
+    card = ModelCard([learned.ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 96, 192)], 8)
     margin = learned.RANGE_MARGIN
-    chosen = {span: (variant.max_disp, factor) for span in (10, 120, 121, 184, 185, 248, 249, 600)
+    chosen = {span: (variant.max_disp, factor) for span in (10, 88, 89, 120, 121, 184, 185, 248, 249, 600)
               for variant, factor in [card.variant_for(span)]}
-    assert margin == 8 and chosen == {10: (128, 1), 120: (128, 1), 121: (192, 1), 184: (192, 1), 185: (256, 1),
-                                      248: (256, 1), 249: (192, 2), 600: (192, 4)}
+    assert margin == 8 and chosen == {10: (96, 1), 88: (96, 1), 89: (128, 1), 120: (128, 1), 121: (192, 1),
+                                      184: (192, 1), 185: (256, 1), 248: (256, 1), 249: (192, 2), 600: (192, 4)}
 
 
 def test_a_missing_card_names_the_environment_variable(tmp_path: Path, monkeypatch):
@@ -109,6 +109,19 @@ def test_recovers_rendered_disparity_across_bands(rng, scene):
     assert result.valid[pair.reliable].mean() > 0.8
 
 
+def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
+    pair = render_pair(rng, (96, 160), background=(6.0, 0.0), foreground=(21.0, 0.0))
+    result = CADE(pair.left, pair.right, max_disp=32)
+    assert pair.occluded.sum() > 100
+    assert np.median(np.abs(result.disparity - pair.disparity)[pair.occluded]) < 1.0  # background side
+    assert result.valid[pair.reliable].mean() > 0.95
+    # invalid: the left border (matches leave the right view) and around the occlusion
+    # beside the foreground (rows 24..71, left edge at x = 53), hardly anywhere else
+    rows, columns = np.nonzero(~result.valid)
+    near_occlusion = (rows >= 20) & (rows < 76) & (np.abs(columns - 45) < 20)
+    assert near_occlusion.sum() > 50 and (near_occlusion | (columns < 32)).mean() > 0.97
+
+
 def test_negative_range_by_pre_shifting(rng):
     pair = render_pair(rng, (96, 160), background=(-11.6, 0.0))
     result = CADE(pair.left, pair.right, min_disp=-24, max_disp=8)
@@ -116,9 +129,9 @@ def test_negative_range_by_pre_shifting(rng):
     assert result.disparity.min() >= -24 and result.disparity.max() <= 8
 
 
-def test_wide_variant_runs_at_full_resolution(rng, monkeypatch):
+def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
     card = ModelCard.load()
-    narrow, wide = card.variants[0].max_disp, card.variants[1].max_disp
+    narrow, wide = card.variants[-2].max_disp, card.variants[-1].max_disp
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))
     chosen = []
     choose = ModelCard.variant_for

@@ -11,10 +11,12 @@ from cade_cli.matching.disparity import (
     fill_invalid_along_rows,
     left_right_check,
     right_view_cost,
+    visible_in_right_view,
     winner_takes_all,
 )
 from cade_cli.matching.reference import census_cost_reference, sgm_aggregate_reference, zncc_cost_reference
 from cade_cli.matching.sgm import sgm_aggregate
+from synthetic import render_pair
 
 
 @pytest.mark.parametrize("window", [3, 5, 7])
@@ -132,3 +134,22 @@ def test_winner_takes_all_on_unsigned_costs_refines_both_ways():
     estimate = winner_takes_all(CostVolume(values, DisparityRange(0, 3)))
     # vertex offset = (before - after) / (2 * (before - 2 centre + after)) = +-5 / 18
     assert estimate[0, 0] == pytest.approx(1 + 5 / 18) and estimate[0, 1] == pytest.approx(2 - 5 / 18)
+
+
+def test_visibility_flags_what_a_nearer_surface_hides_and_what_leaves_the_view():
+    disparity = np.full((3, 80), 5.0, np.float32)
+    disparity[:, 40:60] = 20.0  # lands on 20..39, where background pixels 25..44 land
+    visible = visible_in_right_view(disparity, tolerance=1.0)
+    # background x lands on x - 5; hidden once the block lands more than 1 px left of it
+    expected = np.ones(80, bool)
+    expected[:5] = False          # x - 5 < 0: outside the right view
+    expected[27:40] = False       # x - 5 >= 22 > 20 + 1
+    np.testing.assert_array_equal(visible, np.broadcast_to(expected, (3, 80)))
+
+
+def test_visibility_of_a_rendered_scene_matches_its_occlusions(rng):
+    pair = render_pair(rng, (64, 120), background=(6.0, 0.0), foreground=(21.0, 0.0))
+    visible = visible_in_right_view(pair.disparity)
+    assert pair.occluded.sum() > 100
+    assert (~visible)[pair.occluded].mean() > 0.8  # the 1-px tolerance spares 2 px of each 15-px strip
+    assert visible[pair.reliable].all()

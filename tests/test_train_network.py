@@ -12,7 +12,7 @@ torch = pytest.importorskip("torch")
 
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
 from cade_cli.train.fit import GeneratedBatches, TrainConfig, learning_rate, train  # noqa: E402
-from cade_cli.train.model import CadeNet, groupwise_correlation, parameter_count  # noqa: E402
+from cade_cli.train.model import CadeNet, Refinement, groupwise_correlation, parameter_count  # noqa: E402
 
 
 def test_groupwise_correlation_matches_a_loop_reference():
@@ -73,10 +73,10 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
     assert torch.load(checkpoint, weights_only=False)["step"] == 6
 
     onnx_path = tmp_path / "tiny.onnx"
-    card = export_checkpoint(checkpoint, onnx_path, tmp_path / "tiny.json")
+    card = export_checkpoint(checkpoint, onnx_path, tmp_path / "tiny.json", other_ranges=(40, 8, 16))
     assert card["trained_max_disp"] == 16 and card["divisor"] == 8 and card["steps"] == 6
-    assert [v["max_disp"] for v in card["variants"]] == [16, 192, 256]
-    assert [v["file"] for v in card["variants"]] == ["tiny.onnx", "tiny-192.onnx", "tiny-256.onnx"]
+    assert [v["max_disp"] for v in card["variants"]] == [8, 16, 40]
+    assert [v["file"] for v in card["variants"]] == ["tiny-8.onnx", "tiny.onnx", "tiny-40.onnx"]
     assert all(len(v["sha256"]) == 64 for v in card["variants"])
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
 
@@ -92,3 +92,18 @@ def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
     path = tmp_path / "net.onnx"
     export_onnx(net, path)
     assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3
+
+
+def test_refinement_sees_a_map_beyond_its_scale_as_relative_depth():
+    torch.manual_seed(0)
+    refinement = Refinement(8).eval()
+    torch.nn.init.normal_(refinement.net[-1].weight, std=0.1)  # not the identity it starts as
+    left = torch.rand(1, 1, 24, 32)
+    disparity = 100.0 * torch.rand(1, 1, 24, 32)
+    disparity[0, 0, 0, 0] = 128.0  # reaches the scale exactly: no shift yet
+    with torch.no_grad():
+        inside = refinement(disparity, left, 128.0) - disparity
+        beyond = refinement(disparity + 60.0, left, 128.0) - (disparity + 60.0)
+        below = refinement(disparity - 60.0, left, 128.0) - (disparity - 60.0)
+    torch.testing.assert_close(beyond, inside)  # lowered by its 60 px excess: same residual
+    assert (below - inside).abs().max() > 1e-3   # within the scale, absolute depth still counts

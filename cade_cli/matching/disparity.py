@@ -69,6 +69,27 @@ def left_right_check(left_disparity: np.ndarray, right_disparity: np.ndarray, *,
     return inside & (np.abs(seen - left_disparity) <= tolerance)
 
 
+def visible_in_right_view(disparity: np.ndarray, *, tolerance: float = 1.0) -> np.ndarray:
+    """Pixels of the left view that the right view sees, judged from the left disparity alone.
+
+    Left pixel x with disparity d lands on x - d in the right view. A nearer surface
+    hides it when some pixel x' > x on the same row lands left of it: x' - d(x') <
+    x - d(x) - ``tolerance`` (x' > x then implies d(x') > d(x)). Pixels landing outside
+    the right image are not visible either. One pass per row (a running minimum from
+    the right), so it costs far less than a second, right-view disparity map.
+
+    Returns:
+        (H, W) bool mask, True = visible (not occluded, inside the right view).
+    """
+    disparity = np.asarray(disparity, np.float32)
+    width = disparity.shape[1]
+    landing = np.arange(width, dtype=np.float32)[None, :] - disparity
+    nearest_right = np.minimum.accumulate(landing[:, ::-1], axis=1)[:, ::-1]  # min over x' >= x
+    hidden = np.zeros(disparity.shape, bool)
+    hidden[:, :-1] = nearest_right[:, 1:] < landing[:, :-1] - tolerance
+    return ~hidden & (landing >= 0) & (landing <= width - 1)
+
+
 def fill_invalid_along_rows(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Dense copy of ``disparity`` with invalid pixels filled from the background side.
 

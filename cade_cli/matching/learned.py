@@ -13,8 +13,13 @@ only in ``max_disp`` (the trained range and wider ones). Around it this module:
 * pads to the divisor (replicating the border) and crops back;
 * splits tall images into overlapping horizontal strips, so memory stays bounded
   (disparity is horizontal: a strip holds everything its rows need);
-* marks as invalid the pixels whose disparity distribution is wide (uncertainty
-  above :data:`MAX_UNCERTAINTY` px) or whose match falls outside the right view.
+* marks as invalid the pixels the right view cannot see (a nearer surface hides them,
+  or their match falls outside it; :func:`visible_in_right_view`) and fills them from
+  the background side along the row, like the classical matchers.
+
+The network's ``uncertainty`` output (spread of its disparity distribution) is not used
+for validity: rejecting pixels above 3 px and filling them from the background replaced
+many good estimates on thin and slanted structures (models/README.md, "Validity").
 """
 
 from __future__ import annotations
@@ -31,12 +36,10 @@ import numpy as np
 from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
 
 MODEL_NAME = "cade-v2"
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
-MAX_UNCERTAINTY = 3.0
-"""Pixels whose soft-argmin distribution has a standard deviation above this (px, at the
-resolution the network ran) are reported invalid."""
 STRIP_PIXELS = 1_500_000
 """Largest padded strip (pixels) given to the network at once; bounds memory (the cost
 volume grows with the variant's range: about 1 GB at 128 levels, 2.3 GB at 256)."""
@@ -173,8 +176,8 @@ def refine_subpixel(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, 
     """
     height, width = left.shape
     base = np.rint(disparity).astype(np.int32)
-    columns = np.arange(width, dtype=np.int32)[None, :]
-    rows = np.arange(height)[:, None]
+    landing = (np.arange(width, dtype=np.int32)[None, :] - base).astype(np.float32)
+    rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width))
     size = (window, window)
 
     def box(image: np.ndarray) -> np.ndarray:
@@ -184,18 +187,23 @@ def refine_subpixel(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, 
     left_var = box(left * left) - left_mean * left_mean
     scores = []
     for offset in range(-radius, radius + 1):
-        source = np.clip(columns - (base + offset), 0, width - 1)
-        warped = right[rows, source]
+        # right(y, x - base - offset), border columns replicated (integer positions: exact)
+        warped = cv2.remap(right, landing - offset, rows, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
         warped_mean = box(warped)
         covariance = box(left * warped) - left_mean * warped_mean
         warped_var = box(warped * warped) - warped_mean * warped_mean
         scores.append(covariance / np.sqrt(np.maximum(left_var * warped_var, 1e-12)))
-    scores = np.stack(scores)
-    best = np.argmax(scores, axis=0)
-    peak = np.take_along_axis(scores, best[None], 0)[0]
+    # Per-pixel argmax (first maximum) and its neighbours, one plane at a time: on a
+    # (2r+1, H, W) stack, axis-0 argmax and gathers cost more than all the ZNCC above.
+    best, peak = np.zeros((height, width), np.int8), scores[0]
+    for index in range(1, len(scores)):
+        better = scores[index] > peak
+        best, peak = np.where(better, np.int8(index), best), np.where(better, scores[index], peak)
+    before, after = np.zeros_like(peak), np.zeros_like(peak)
+    for index in range(1, 2 * radius):
+        at = best == index
+        before, after = np.where(at, scores[index - 1], before), np.where(at, scores[index + 1], after)
     interior = (best > 0) & (best < 2 * radius)
-    before = np.take_along_axis(scores, np.clip(best - 1, 0, 2 * radius)[None], 0)[0]
-    after = np.take_along_axis(scores, np.clip(best + 1, 0, 2 * radius)[None], 0)[0]
     curvature = before - 2 * peak + after
     with np.errstate(divide="ignore", invalid="ignore"):
         delta = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
@@ -222,33 +230,27 @@ class CadeNetwork:
             left_small, right_small = (cv2.resize(band, size, interpolation=cv2.INTER_AREA) for band in (left, right))
         else:
             left_small, right_small = left, right
-        disparity, uncertainty = self._run(session, card.divisor, left_small, right_small)
+        disparity = self._run(session, card.divisor, left_small, right_small)
         if self.subpixel:
             disparity = refine_subpixel(left_small, right_small, disparity)
         if factor > 1:
             disparity = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
                 width / left_small.shape[1])
-            uncertainty = cv2.resize(uncertainty, (width, height), interpolation=cv2.INTER_LINEAR)
         disparity = np.clip(disparity + disparity_range.minimum, disparity_range.minimum, disparity_range.maximum)
-        columns = np.arange(width, dtype=np.float32)[None, :]
-        inside = (columns - disparity >= 0) & (columns - disparity <= width - 1)
-        valid = inside & (uncertainty <= MAX_UNCERTAINTY)
-        return DisparityResult(disparity.astype(np.float32), valid)
+        valid = visible_in_right_view(disparity)
+        return DisparityResult(fill_invalid_along_rows(disparity, valid), valid)
 
     @staticmethod
-    def _run(session, divisor: int, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Network outputs for a pair of any size: strips, padding, cropping."""
+    def _run(session, divisor: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """The network's disparity for a pair of any size: strips, padding, cropping."""
         height, width = left.shape
         disparity = np.empty((height, width), np.float32)
-        uncertainty = np.empty((height, width), np.float32)
         padded_width = width + (-width % divisor)
         for start, stop, keep_start, keep_stop in strips(height, padded_width, divisor=divisor):
             rows = stop - start
             pad = ((0, -rows % divisor), (0, -width % divisor))
             inputs = {name: np.pad(band[start:stop], pad, mode="edge")[None, None].astype(np.float32, copy=False)
                       for name, band in (("left", left), ("right", right))}
-            out_disparity, out_uncertainty = session.run(["disparity", "uncertainty"], inputs)
-            keep = slice(keep_start - start, keep_stop - start)
-            disparity[keep_start:keep_stop] = out_disparity[0, 0, keep, :width]
-            uncertainty[keep_start:keep_stop] = out_uncertainty[0, 0, keep, :width]
-        return disparity, uncertainty
+            (out,) = session.run(["disparity"], inputs)
+            disparity[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start, :width]
+        return disparity

