@@ -26,8 +26,8 @@ OUTPUT_NAMES = ["disparity", "uncertainty"]
 OTHER_RANGES = (160, 192, 224, 256)
 """Besides the trained range, each export also writes the same weights searching these
 wider ranges, so the runtime keeps wide scenes at full resolution instead of downscaling
-them. (Narrower exports, 64 and 96, were ~8 % faster on small spans but 0.05 px less
-accurate on Middlebury 2005 CS; see models/README.md.)"""
+them. (Narrower exports, 64 and 96, were tried and dropped: less accurate on Middlebury
+2005 CS; see models/README.md.)"""
 
 
 def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
