@@ -34,16 +34,16 @@ bench-memory: $(BIN)/cade
 	$(BIN)/python benchmarks/memory.py --width 3000 --height 2000 --max-disp 200
 
 # Train the CADE network on generated data (torch only here, CPU build pinned) and export
-# it to models/: cade-v2 is cade-v1's committed checkpoint fine-tuned on the current
+# it to models/: cade-v3 is cade-v2's committed checkpoint fine-tuned on the current
 # generator. The run resumes from $(RUN)/last.pt when it exists. See models/README.md.
-RUN ?= runs/cade-v2
-INIT ?= runs/cade-v1/last.pt
-STEPS ?= 6000
+RUN ?= runs/cade-v3
+INIT ?= runs/cade-v2/last.pt
+STEPS ?= 3500
 train: $(BIN)/cade
 	$(BIN)/python -m pip install --quiet -e '.[train,test]'
 	$(BIN)/python -m cade_cli.train fit --out $(RUN) --init $(INIT) --textures ../shared/data/textures \
-		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 1 --device cpu --threads 2 --workers 1
-	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v2.onnx
+		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 3 --device cpu --threads 2 --workers 1
+	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v3.onnx
 
 clean:
 	rm -rf $(OUT) .pytest_cache

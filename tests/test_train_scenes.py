@@ -12,7 +12,15 @@ from cade_cli import spectral
 from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
-from cade_cli.train.scenes import NO_PHOTOMETRIC, TexturePool, procedural_texture, random_shape, render_scene
+from cade_cli.train.scenes import (
+    NO_PHOTOMETRIC,
+    Photometric,
+    TexturePool,
+    _textured,
+    procedural_texture,
+    random_shape,
+    render_scene,
+)
 
 
 def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
@@ -73,6 +81,28 @@ def test_same_seed_same_scene_and_views_differ_photometrically():
     assert np.array_equal(a.left, b.left) and np.array_equal(a.disparity, b.disparity)
     assert a.left.dtype == np.float32 and a.left.shape == (64, 96, 3)
     assert 0.0 <= a.left.min() and a.left.max() <= 1.0
+
+
+@pytest.mark.parametrize("share", [0.0, 1.0])
+def test_views_are_stored_with_8_bits_as_camera_images_are(share):
+    """With ``quantized_share`` 1 every view holds only 8-bit levels; with 0 the same noisy
+    camera keeps its float values (the check can fail both ways)."""
+    camera = Photometric(noise_sigma=(0.01, 0.02), quantized_share=share)
+    scene = render_scene(np.random.default_rng(5), 48, 64, max_disp=16, textures=TexturePool(), photometric=camera)
+    for view in (scene.left, scene.right):
+        on_levels = np.abs(view * 255 - np.rint(view * 255)) < 1e-3
+        assert on_levels.all() if share == 1.0 else on_levels.mean() < 0.1
+
+
+def test_some_surfaces_are_dark_or_nearly_textureless():
+    """Real scenes have black cloth, shadows and blank walls: about a tenth of the surfaces
+    are dark (brightest value <= 0.1) and about a tenth have little contrast (each channel
+    spans <= 0.15)."""
+    rng = np.random.default_rng(0)
+    textures = [_textured(rng, TexturePool(), 64, 64)[0] for _ in range(300)]
+    dark = np.mean([texture.max() <= 0.1 for texture in textures])
+    flat = np.mean([texture.max() > 0.1 and np.ptp(texture, axis=(0, 1)).max() <= 0.15 for texture in textures])
+    assert 0.05 < dark < 0.15 and 0.05 < flat < 0.2
 
 
 def test_texture_pool_reads_image_folders(tmp_path: Path):

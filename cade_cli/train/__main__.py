@@ -51,7 +51,7 @@ def fit(
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt.")],
-    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v2.onnx"),
+    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v3.onnx"),
     hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each

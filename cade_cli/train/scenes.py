@@ -53,9 +53,12 @@ class Photometric:
     gamma: tuple[float, float] = (0.7, 1.4)
     blur_sigma: tuple[float, float] = (0.0, 1.0)
     noise_sigma: tuple[float, float] = (0.0, 0.03)
+    quantized_share: float = 0.8
+    """Probability that a view is stored with 8 bits, as real camera images are: in dark
+    and flat regions the CADE transform then sees a few grey levels, not smooth noise."""
 
 
-NO_PHOTOMETRIC = Photometric((1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0))
+NO_PHOTOMETRIC = Photometric((1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0), 0.0)
 
 
 class TexturePool:
@@ -327,9 +330,12 @@ def render_scene(
 
 def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     texture = textures.draw(rng)
-    if rng.random() < 0.1:  # nearly textureless surfaces exist too
+    kind = rng.random()
+    if kind < 0.1:  # nearly textureless surfaces exist too
         mean = texture.mean(axis=(0, 1), keepdims=True)
         texture = (mean + rng.uniform(0.02, 0.15) * (texture - mean)).astype(np.float32)
+    elif kind < 0.2:  # and dark ones (black cloth, shadows): after noise and 8 bits, little signal is left
+        texture = (rng.uniform(0.01, 0.1) * texture).astype(np.float32)
     return texture, _mapping(rng, texture, height, width)
 
 
@@ -343,4 +349,7 @@ def _camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometri
         out = cv2.GaussianBlur(out, (0, 0), sigma)
     if noise > 0:
         out = out + noise * rng.standard_normal(out.shape).astype(np.float32)
-    return np.clip(out, 0.0, 1.0).astype(np.float32)
+    out = np.clip(out, 0.0, 1.0)
+    if rng.random() < photometric.quantized_share:
+        out = np.rint(out * 255.0) / 255.0
+    return out.astype(np.float32)
