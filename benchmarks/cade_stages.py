@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cade_cli.datasets import read_calib
 from cade_cli.matching import learned
 from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
 from cade_cli.spectral import color_agnostic
@@ -40,13 +41,6 @@ def best_of(function, repeat: int) -> tuple[float, object]:
         result = function()
         times.append(time.perf_counter() - start)
     return min(times), result
-
-
-def ndisp(calib: Path) -> int:
-    for line in calib.read_text().splitlines():
-        if line.startswith("ndisp="):
-            return int(line.split("=", 1)[1])
-    raise SystemExit(f"no ndisp in {calib}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,21 +61,24 @@ def main(argv: list[str] | None = None) -> int:
     for folder in folders:
         left, right = (cv2.imread(str(folder / name), cv2.IMREAD_GRAYSCALE).astype(np.float32) / 255.0
                        for name in ("im0.png", "im1.png"))
-        span = ndisp(folder / "calib.txt") - 1
+        span = read_calib(folder / "calib.txt")["ndisp"] - 1
         megapixels = left.size / 1e6
         transform, (band_left, band_right) = best_of(lambda: (color_agnostic(left), color_agnostic(right)),
                                                      args.repeat)
         variant, factor = card.variant_for(span)
+        if factor > 1:  # the stages below run at full size; the runtime would downscale first
+            raise SystemExit(f"{folder.name}: span {span} px needs a x{factor} pyramid level, which this "
+                             f"script does not time; use a smaller resolution")
         session = learned._session(variant.path, variant.sha256)
         network, raw = best_of(lambda: learned.CadeNetwork._run(session, card.divisor, band_left, band_right),
                                args.repeat)
         subpixel, sharp = best_of(lambda: learned.refine_subpixel(band_left, band_right, raw), args.repeat)
         validity, _ = best_of(lambda: fill_invalid_along_rows(sharp, visible_in_right_view(sharp)), args.repeat)
-        stage_rows.append((folder.name, megapixels, span, variant.max_disp, factor,
-                           transform, network, subpixel, validity))
+        stage_rows.append((folder.name, megapixels, span, variant.max_disp, transform, network, subpixel, validity))
         for other in card.variants:
-            seconds, _ = best_of(lambda: learned.CadeNetwork._run(
-                learned._session(other.path, other.sha256), card.divisor, band_left, band_right), args.repeat)
+            other_session = learned._session(other.path, other.sha256)
+            seconds, _ = best_of(lambda: learned.CadeNetwork._run(other_session, card.divisor, band_left, band_right),
+                                 args.repeat)
             level_samples.append((other.max_disp // 4, seconds / megapixels))
 
     lines = [
@@ -90,14 +87,14 @@ def main(argv: list[str] | None = None) -> int:
         f"- Command: `OMP_NUM_THREADS={threads or 'unset'} {shlex.join([Path(sys.executable).name] + sys.argv)}`",
         f"- Model: {learned.MODEL_NAME}; fastest of {args.repeat} timed runs after one untimed run, per stage",
         "",
-        "| scene | MP | span | variant | factor | transform s | network s | sub-pixel s | validity + fill s "
+        "| scene | MP | span | variant | transform s | network s | sub-pixel s | validity + fill s "
         "| total s/MP |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     totals = np.zeros(4)
-    for name, megapixels, span, max_disp, factor, *stages in stage_rows:
+    for name, megapixels, span, max_disp, *stages in stage_rows:
         totals += np.array(stages) / megapixels
-        lines.append(f"| {name} | {megapixels:.3f} | {span} | {max_disp} | {factor} | "
+        lines.append(f"| {name} | {megapixels:.3f} | {span} | {max_disp} | "
                      + " | ".join(f"{s:.3f}" for s in stages) + f" | {sum(stages) / megapixels:.3f} |")
     share = totals / totals.sum() * 100
     lines += ["", "Mean s/MP per stage: " + ", ".join(

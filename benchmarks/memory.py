@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     rng = np.random.default_rng(0)
     small = rng.random((args.height // 12, (args.width + int(args.disparity) + 8) // 12)).astype(np.float32)
     texture = cv2.resize(small, (args.width + int(args.disparity) + 8, args.height), interpolation=cv2.INTER_CUBIC)
-    texture = cv2.normalize(texture, None, 0, 1, cv2.NORM_MINMAX)
+    texture = np.clip(cv2.normalize(texture, None, 0, 1, cv2.NORM_MINMAX), 0, 1)  # rounding can dip below 0
     shift = int(args.disparity)
     left = texture[:, :args.width]
     right = texture[:, shift:shift + args.width] ** 2.2  # I_left(x) = I_right(x - d), another "filter"

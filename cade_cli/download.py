@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from cade_cli import __version__
-from cade_cli.checksum import file_sha256
+from cade_cli.checksum import CHUNK_BYTES, file_sha256
 from cade_cli.errors import CadeError, lookup
 
 if TYPE_CHECKING:
@@ -48,8 +48,6 @@ DOWNLOADS_FOLDER = ".downloads"
 
 TIMEOUT_S = 60.0
 """Seconds without an answer or a byte before a transfer counts as failed."""
-
-CHUNK_BYTES = 1 << 20
 
 RESOLUTIONS: tuple[str, ...] = ("Q", "H", "F")
 """What ``--resolution`` accepts: quarter, half, full (Middlebury 2005/2006: Q = ThirdSize)."""
