@@ -34,16 +34,17 @@ bench-memory: $(BIN)/cade
 	$(BIN)/python benchmarks/memory.py --width 3000 --height 2000 --max-disp 200
 
 # Train the CADE network on generated data (torch only here, CPU build pinned) and export
-# it to models/: cade-v3 is cade-v2's committed checkpoint fine-tuned on the current
-# generator. The run resumes from $(RUN)/last.pt when it exists. See models/README.md.
-RUN ?= runs/cade-v3
-INIT ?= runs/cade-v2/last.pt
-STEPS ?= 3500
+# it to models/: cade-v4 is cade-v3's committed checkpoint fine-tuned into the faster
+# design (zero padding, 1x1x1 first 3D kernel). The run resumes from $(RUN)/last.pt when
+# it exists. See models/README.md.
+RUN ?= runs/cade-v4
+INIT ?= runs/cade-v3/last.pt
+STEPS ?= 6000
 train: $(BIN)/cade
 	$(BIN)/python -m pip install --quiet -e '.[train,test]'
 	$(BIN)/python -m cade_cli.train fit --out $(RUN) --init $(INIT) --textures ../shared/data/textures \
-		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 3 --device cpu --threads 2 --workers 1
-	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v3.onnx
+		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 4 --device cpu --threads 2 --workers 1
+	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v4.onnx
 
 clean:
 	rm -rf $(OUT) .pytest_cache

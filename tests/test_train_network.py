@@ -12,7 +12,14 @@ torch = pytest.importorskip("torch")
 
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
 from cade_cli.train.fit import GeneratedBatches, TrainConfig, learning_rate, train  # noqa: E402
-from cade_cli.train.model import CadeNet, Refinement, groupwise_correlation, parameter_count  # noqa: E402
+from cade_cli.train.model import (  # noqa: E402
+    LEGACY_DESIGN,
+    CadeNet,
+    Refinement,
+    adapt_state_dict,
+    groupwise_correlation,
+    parameter_count,
+)
 
 
 def test_groupwise_correlation_matches_a_loop_reference():
@@ -107,3 +114,33 @@ def test_refinement_sees_a_map_beyond_its_scale_as_relative_depth():
         below = refinement(disparity - 60.0, left, 128.0) - (disparity - 60.0)
     torch.testing.assert_close(beyond, inside)  # lowered by its 60 px excess: same residual
     assert (below - inside).abs().max() > 1e-3   # within the scale, absolute depth still counts
+
+
+def test_a_3x3x3_entry_kernel_becomes_the_1x1x1_kernel_with_the_same_flat_response():
+    torch.manual_seed(0)
+    legacy, current = CadeNet(max_disp=32, **LEGACY_DESIGN).eval(), CadeNet(max_disp=32).eval()
+    current.load_state_dict(adapt_state_dict(legacy.state_dict(), current))  # every key, every shape
+    wide, narrow = legacy.aggregation.entry[0][0], current.aggregation.entry[0][0]
+    assert wide.kernel_size == (3, 3, 3) and narrow.kernel_size == (1, 1, 1)
+    flat = torch.full((1, 8, 6, 7, 9), 0.3) + torch.arange(8.0).view(1, 8, 1, 1, 1)  # constant per group
+    with torch.no_grad():
+        torch.testing.assert_close(narrow(flat)[..., 1:-1, 1:-1, 1:-1], wide(flat)[..., 1:-1, 1:-1, 1:-1])
+        ramp = torch.rand(1, 8, 6, 7, 9)
+        assert (narrow(ramp) - wide(ramp)).abs().max() > 1e-3  # not the same layer on a textured volume
+
+
+def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: Path):
+    legacy = CadeNet(max_disp=16, **LEGACY_DESIGN)
+    config = TrainConfig(out="old", textures=[], max_disp=16)
+    old_config = {k: v for k, v in vars(config).items() if k not in ("padding", "entry_kernel")}
+    torch.save({"model": legacy.state_dict(), "config": old_config, "step": 1, "elapsed_s": 0.0},
+               tmp_path / "legacy.pt")
+    # a checkpoint written before the design keys existed exports as the design it was trained with
+    card = export_checkpoint(tmp_path / "legacy.pt", tmp_path / "old.onnx", tmp_path / "old.json", other_ranges=())
+    assert card["design"] == LEGACY_DESIGN
+    # and starts a fine-tuning run of the current design
+    tuned = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=32, width=64,
+                        max_disp=16, workers=0, init=str(tmp_path / "legacy.pt"))
+    card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
+    assert card["design"] == {"padding": "zeros", "entry_kernel": 1}
+    assert card["onnx_vs_torch_max_abs_diff"] < 1e-3

@@ -31,7 +31,7 @@ MATCHERS: dict[str, Matcher] = {
                 OpenCvSgbm(), 5, best_preprocess="cade"),
         # The network was trained on color-agnostic bands only; memory is bounded by
         # strips and a pyramid, not by the range.
-        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v3)",
+        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v4)",
                 CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, volume_bytes=0),
     )
 }

@@ -38,7 +38,7 @@ from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
 from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
 
-MODEL_NAME = "cade-v3"
+MODEL_NAME = "cade-v4"
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 STRIP_PIXELS = 1_500_000
 """Largest padded strip (pixels) given to the network at once; bounds memory (the cost

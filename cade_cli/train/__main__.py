@@ -36,6 +36,10 @@ def fit(
     init: Annotated[Path | None, typer.Option(exists=True, dir_okay=False,
                                               help="Fine-tune: start a new run from this checkpoint's weights.")] = None,
     warmup: Annotated[int, typer.Option(min=0, help="Linear warm-up steps.")] = 200,
+    padding: Annotated[str, typer.Option(help="2D padding mode: zeros (cade-v4) or replicate (cade-v1 ... v3).")]
+    = "zeros",
+    entry_kernel: Annotated[int, typer.Option(min=1, help="First 3D kernel size: 1 (cade-v4) or 3 (v1 ... v3).")]
+    = 1,
 ) -> None:
     """Train (or resume) a run."""
     from cade_cli.train.fit import TrainConfig, train
@@ -44,14 +48,15 @@ def fit(
                          data_dir=str(data_dir) if data_dir else None, steps=steps, batch=batch, height=height,
                          width=width, max_disp=max_disp, lr=lr, seed=seed, device=device, threads=threads,
                          workers=workers, validate_every=validate_every, stop_after=stop_after,
-                         init=str(init) if init else None, warmup=warmup)
+                         init=str(init) if init else None, warmup=warmup, padding=padding,
+                         entry_kernel=entry_kernel)
     train(config, resume=resume)
 
 
 @app.command()
 def export(
     checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt.")],
-    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v3.onnx"),
+    onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v4.onnx"),
     hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each

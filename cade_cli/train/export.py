@@ -16,23 +16,22 @@ import numpy as np
 import torch
 
 from cade_cli.checksum import file_sha256
-from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, design_of, parameter_count
 
 OPSET = 17
 INPUT_NAMES = ["left", "right"]
 OUTPUT_NAMES = ["disparity", "uncertainty"]
 
 
-OTHER_RANGES = (160, 192, 224, 256)
+OTHER_RANGES = (96, 160, 192, 224, 256)
 """Besides the trained range, each export also writes the same weights searching these
-wider ranges, so the runtime keeps wide scenes at full resolution instead of downscaling
-them. (Narrower exports, 64 and 96, were tried and dropped: less accurate on Middlebury
-2005 CS; see models/README.md.)"""
+ranges: wider ones keep wide scenes at full resolution instead of downscaling them, the
+narrower 96 runs spans up to 88 px a fifth faster (see models/README.md)."""
 
 
 def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = CadeNet(state["config"]["max_disp"])
+    net = CadeNet(state["config"]["max_disp"], **design_of(state["config"]))
     net.load_state_dict(state["model"])
     return net.eval(), state
 
@@ -41,7 +40,7 @@ def with_range(net: CadeNet, max_disp: int) -> CadeNet:
     """The same weights searching ``max_disp`` (no weight depends on the range)."""
     if max_disp == net.max_disp:
         return net
-    wide = CadeNet(max_disp)
+    wide = CadeNet(max_disp, **net.design)
     wide.load_state_dict(net.state_dict())
     return wide.eval()
 
@@ -98,6 +97,7 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
         "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
                         "-> soft-argmin -> full-res refinement",
         "parameters": parameter_count(net),
+        "design": net.design,
         "trained_max_disp": net.max_disp,
         "variants": variants,
         "divisor": DIVISOR,

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cade_cli.train.model import DIVISOR, CadeNet, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, parameter_count
 from cade_cli.train.pairs import cade_pair
 from cade_cli.train.scenes import TexturePool, render_scene
 
@@ -45,7 +45,12 @@ class TrainConfig:
     stop_after: int | None = None
     """Leave the loop after this step (checkpointed) although the schedule runs to ``steps``."""
     init: str | None = None
-    """Start from this checkpoint's weights (fine-tuning: new optimizer, new schedule from step 0)."""
+    """Start from this checkpoint's weights (fine-tuning: new optimizer, new schedule from step 0);
+    a 3x3x3 entry kernel there is reduced to a 1x1x1 one here (``adapt_state_dict``)."""
+    padding: str = "zeros"
+    """CadeNet's 2D padding mode; cade-v1 … v3 were trained with "replicate"."""
+    entry_kernel: int = 1
+    """CadeNet's first 3D kernel size; cade-v1 … v3 were trained with 3."""
 
 
 class GeneratedBatches(torch.utils.data.Dataset):
@@ -160,7 +165,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "last.pt"
     torch.manual_seed(config.seed)
-    net = CadeNet(config.max_disp).to(config.device)
+    net = CadeNet(config.max_disp, padding=config.padding, entry_kernel=config.entry_kernel).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     start, elapsed_before = 0, 0.0
     if resume and checkpoint_path.exists():
@@ -170,7 +175,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         start, elapsed_before = state["step"], state["elapsed_s"]
         torch.set_rng_state(state["torch_rng"])
     elif config.init:
-        net.load_state_dict(torch.load(config.init, map_location=config.device, weights_only=False)["model"])
+        initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
+        net.load_state_dict(adapt_state_dict(initial, net))
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log_path = out / "log.csv"
     new_log = not log_path.exists() or start == 0

@@ -1,7 +1,7 @@
 """The CADE stereo network: small enough to train and run on a CPU.
 
 Design (justified in models/README.md):
-  features   2D CNN, CADE band -> 32 channels at 1/4 resolution (replicate padding);
+  features   2D CNN, CADE band -> 32 channels at 1/4 resolution;
   cost       group-wise correlation (8 groups) over max_disp/4 disparity levels;
   aggregate  3D CNN with one stride-2 hourglass, 8-16 channels;
   regress    soft-argmin over the levels (x4 to full-resolution pixels), plus the
@@ -25,28 +25,29 @@ DISPARITY_SCALE = 128.0
 """Disparity is divided by this before it enters the refinement net, whatever the searched range."""
 
 
-def conv2d(cin: int, cout: int, *, stride: int = 1, dilation: int = 1, act: bool = True) -> nn.Sequential:
+def conv2d(cin: int, cout: int, *, stride: int = 1, dilation: int = 1, act: bool = True,
+           padding: str = "zeros") -> nn.Sequential:
     layers: list[nn.Module] = [
-        nn.Conv2d(cin, cout, 3, stride, padding=dilation, dilation=dilation, bias=not act, padding_mode="replicate")
+        nn.Conv2d(cin, cout, 3, stride, padding=dilation, dilation=dilation, bias=not act, padding_mode=padding)
     ]
     if act:
         layers += [nn.BatchNorm2d(cout), nn.LeakyReLU(0.1, inplace=True)]
     return nn.Sequential(*layers)
 
 
-def conv3d(cin: int, cout: int, *, stride: int = 1, act: bool = True) -> nn.Sequential:
-    layers: list[nn.Module] = [nn.Conv3d(cin, cout, 3, stride, padding=1, bias=not act)]
+def conv3d(cin: int, cout: int, *, stride: int = 1, act: bool = True, kernel: int = 3) -> nn.Sequential:
+    layers: list[nn.Module] = [nn.Conv3d(cin, cout, kernel, stride, padding=kernel // 2, bias=not act)]
     if act:
         layers += [nn.BatchNorm3d(cout), nn.LeakyReLU(0.1, inplace=True)]
     return nn.Sequential(*layers)
 
 
 class ResidualBlock(nn.Module):
-    def __init__(self, channels: int, dilation: int = 1):
+    def __init__(self, channels: int, dilation: int = 1, padding: str = "zeros"):
         super().__init__()
-        self.body = nn.Sequential(conv2d(channels, channels, dilation=dilation),
+        self.body = nn.Sequential(conv2d(channels, channels, dilation=dilation, padding=padding),
                                   nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation,
-                                            bias=False, padding_mode="replicate"),
+                                            bias=False, padding_mode=padding),
                                   nn.BatchNorm2d(channels))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -56,13 +57,13 @@ class ResidualBlock(nn.Module):
 class FeatureNet(nn.Module):
     """(B, 1, H, W) -> (B, C, H/4, W/4)."""
 
-    def __init__(self, channels: int = 32):
+    def __init__(self, channels: int = 32, padding: str = "zeros"):
         super().__init__()
         self.net = nn.Sequential(
-            conv2d(1, 16, stride=2), conv2d(16, 16),
-            conv2d(16, channels, stride=2), ResidualBlock(channels), ResidualBlock(channels, 2),
-            ResidualBlock(channels),
-            nn.Conv2d(channels, channels, 3, padding=1, padding_mode="replicate"),
+            conv2d(1, 16, stride=2, padding=padding), conv2d(16, 16, padding=padding),
+            conv2d(16, channels, stride=2, padding=padding), ResidualBlock(channels, padding=padding),
+            ResidualBlock(channels, 2, padding=padding), ResidualBlock(channels, padding=padding),
+            nn.Conv2d(channels, channels, 3, padding=1, padding_mode=padding),
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -83,9 +84,9 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, 
 class Aggregation(nn.Module):
     """3D CNN over the cost volume, one hourglass level, -> logits (B, D, h, w)."""
 
-    def __init__(self, groups: int = 8, channels: int = 8):
+    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 3):
         super().__init__()
-        self.entry = nn.Sequential(conv3d(groups, channels), conv3d(channels, channels))
+        self.entry = nn.Sequential(conv3d(groups, channels, kernel=entry_kernel), conv3d(channels, channels))
         self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2), conv3d(2 * channels, 2 * channels))
         self.up = nn.Sequential(nn.ConvTranspose3d(2 * channels, channels, 2, stride=2, bias=False),
                                 nn.BatchNorm3d(channels))
@@ -100,11 +101,12 @@ class Aggregation(nn.Module):
 class Refinement(nn.Module):
     """Full-resolution residual on the upsampled disparity, guided by the left band."""
 
-    def __init__(self, channels: int = 16):
+    def __init__(self, channels: int = 16, padding: str = "zeros"):
         super().__init__()
         self.net = nn.Sequential(
-            conv2d(2, channels), conv2d(channels, channels, dilation=2), conv2d(channels, channels, dilation=4),
-            conv2d(channels, channels), nn.Conv2d(channels, 1, 3, padding=1, padding_mode="replicate"),
+            conv2d(2, channels, padding=padding), conv2d(channels, channels, dilation=2, padding=padding),
+            conv2d(channels, channels, dilation=4, padding=padding), conv2d(channels, channels, padding=padding),
+            nn.Conv2d(channels, 1, 3, padding=1, padding_mode=padding),
         )
         nn.init.zeros_(self.net[-1].weight)  # start as the identity: refine what the cost volume found
         nn.init.zeros_(self.net[-1].bias)
@@ -128,18 +130,26 @@ class CadeNet(nn.Module):
     Args:
         max_disp: disparities searched at full resolution are 0 .. max_disp - 4 in steps
             of 4 at the 1/4 level (max_disp must be a multiple of 8).
+        padding: the 2D convolutions' padding mode. ``"zeros"`` (cade-v4 on) lets
+            onnxruntime fuse the padding into each convolution and keep its blocked
+            layout; ``"replicate"`` (cade-v1 … v3) costs a Pad node and layout
+            reorders around each convolution (models/README.md).
+        entry_kernel: kernel size of the first 3D convolution, which mixes the
+            correlation groups: 1 (cade-v4 on) or 3 (cade-v1 … v3; a quarter of the 3D
+            multiply-adds).
     """
 
     def __init__(self, max_disp: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
-                 refine_channels: int = 16):
+                 refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1):
         super().__init__()
         if max_disp % DIVISOR:
             raise ValueError(f"max_disp must be a multiple of {DIVISOR}, got {max_disp}")
         self.max_disp, self.groups = max_disp, groups
         self.levels = max_disp // 4
-        self.features = FeatureNet(features)
-        self.aggregation = Aggregation(groups, channels3d)
-        self.refinement = Refinement(refine_channels)
+        self.design = {"padding": padding, "entry_kernel": entry_kernel}
+        self.features = FeatureNet(features, padding)
+        self.aggregation = Aggregation(groups, channels3d, entry_kernel)
+        self.refinement = Refinement(refine_channels, padding)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
         """left, right: (B, 1, H, W) -> dict with ``disparity`` (B, 1, H, W) refined,
@@ -169,6 +179,29 @@ class ExportWrapper(nn.Module):
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         out = self.net(left, right)
         return out["disparity"], out["uncertainty"]
+
+
+LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3}
+"""The design of checkpoints whose config predates the ``padding``/``entry_kernel`` keys (cade-v1 … v3)."""
+
+
+def design_of(config: dict) -> dict:
+    """CadeNet keyword arguments recorded in a training config (old configs: :data:`LEGACY_DESIGN`)."""
+    return {key: config.get(key, default) for key, default in LEGACY_DESIGN.items()}
+
+
+def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str, torch.Tensor]:
+    """``state`` made loadable into ``net`` when only kernel sizes differ: a 3x3x3 kernel
+    becomes the 1x1x1 kernel that gives the same response on a locally constant input
+    (the sum of its taps). Used to start cade-v4 from cade-v3's weights."""
+    target = net.state_dict()
+    adapted = {}
+    for key, value in state.items():
+        shape = target[key].shape
+        if value.shape != shape and value.dim() == 5 and shape[2:] == (1, 1, 1) and value.shape[:2] == shape[:2]:
+            value = value.sum(dim=(2, 3, 4), keepdim=True)
+        adapted[key] = value
+    return adapted
 
 
 def parameter_count(net: nn.Module) -> int:
