@@ -36,6 +36,7 @@ import argparse
 import os
 import platform
 import shlex
+import statistics
 import sys
 import time
 from dataclasses import dataclass, field
@@ -355,8 +356,6 @@ class Row:
     @property
     def pair_seconds(self) -> float:
         """The median of the timed runs (robust to a run slowed by the machine)."""
-        import statistics
-
         return statistics.median(self.seconds)
 
     @property

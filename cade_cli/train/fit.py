@@ -18,7 +18,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count
 from cade_cli.train.pairs import cade_pair
 from cade_cli.train.scenes import TexturePool, render_scene
 
@@ -165,7 +165,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "last.pt"
     torch.manual_seed(config.seed)
-    net = CadeNet(config.max_disp, padding=config.padding, entry_kernel=config.entry_kernel).to(config.device)
+    net = CadeNet(config.max_disp, **design_of(asdict(config))).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     start, elapsed_before = 0, 0.0
     if resume and checkpoint_path.exists():

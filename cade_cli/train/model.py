@@ -84,7 +84,7 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, 
 class Aggregation(nn.Module):
     """3D CNN over the cost volume, one hourglass level, -> logits (B, D, h, w)."""
 
-    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 3):
+    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 1):
         super().__init__()
         self.entry = nn.Sequential(conv3d(groups, channels, kernel=entry_kernel), conv3d(channels, channels))
         self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2), conv3d(2 * channels, 2 * channels))
@@ -197,7 +197,7 @@ def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str
     target = net.state_dict()
     adapted = {}
     for key, value in state.items():
-        shape = target[key].shape
+        shape = target[key].shape if key in target else value.shape  # unknown keys: load_state_dict names them
         if value.shape != shape and value.dim() == 5 and shape[2:] == (1, 1, 1) and value.shape[:2] == shape[:2]:
             value = value.sum(dim=(2, 3, 4), keepdim=True)
         adapted[key] = value
