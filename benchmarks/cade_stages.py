@@ -4,7 +4,7 @@
 For each MiddEval3 pair (grey, float32 in [0, 1], range [0, ndisp - 1] from calib.txt)
 the stages of :class:`cade_cli.matching.learned.CadeNetwork` are timed separately:
 the color agnostic transform of both bands, the network (the variant the runtime
-picks), the sub-pixel search, and validity plus fill. Then the network alone is timed
+picks), the refinement (SGM of the raw bands around the network), and validity plus fill. Then the network alone is timed
 with every exported variant on the same pairs, and a least-squares line
 ``seconds = fixed + per_level * levels`` (levels = max_disp / 4, the 1/4-resolution
 cost-volume depth) separates what the 2D parts cost (features, refinement) from what
@@ -72,9 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         session = learned._session(variant.path, variant.sha256)
         network, raw = best_of(lambda: learned.CadeNetwork._run(session, card.divisor, band_left, band_right),
                                args.repeat)
-        subpixel, sharp = best_of(lambda: learned.refine_subpixel(band_left, band_right, raw), args.repeat)
-        validity, _ = best_of(lambda: fill_invalid_along_rows(sharp, visible_in_right_view(sharp)), args.repeat)
-        stage_rows.append((folder.name, megapixels, span, variant.max_disp, transform, network, subpixel, validity))
+        refinement, sharp = best_of(lambda: learned.refine_semiglobal(left, right, raw), args.repeat)
+        validity, _ = best_of(lambda: fill_invalid_along_rows(sharp, visible_in_right_view(raw)), args.repeat)
+        stage_rows.append((folder.name, megapixels, span, variant.max_disp, transform, network, refinement, validity))
         for other in card.variants:
             other_session = learned._session(other.path, other.sha256)
             seconds, _ = best_of(lambda: learned.CadeNetwork._run(other_session, card.divisor, band_left, band_right),
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         f"- Command: `OMP_NUM_THREADS={threads or 'unset'} {shlex.join([Path(sys.executable).name] + sys.argv)}`",
         f"- Model: {learned.MODEL_NAME}; fastest of {args.repeat} timed runs after one untimed run, per stage",
         "",
-        "| scene | MP | span | variant | transform s | network s | sub-pixel s | validity + fill s "
+        "| scene | MP | span | variant | transform s | network s | refinement s | validity + fill s "
         "| total s/MP |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     share = totals / totals.sum() * 100
     lines += ["", "Mean s/MP per stage: " + ", ".join(
         f"{label} {value / len(stage_rows):.3f} ({pct:.0f} %)"
-        for label, value, pct in zip(("transform", "network", "sub-pixel", "validity + fill"), totals, share))
+        for label, value, pct in zip(("transform", "network", "refinement", "validity + fill"), totals, share))
         + f"; all stages {totals.sum() / len(stage_rows):.3f} s/MP."]
     levels, per_mp = np.array(level_samples).T
     per_level, fixed = np.polyfit(levels, per_mp, 1)

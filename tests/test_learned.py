@@ -163,8 +163,48 @@ def test_strips_give_the_same_map_as_one_pass(rng, monkeypatch):
     assert close[pair.reliable].mean() > 0.98
 
 
-def test_kernel_takes_cade_bands_and_output_is_dense(rng):
+def test_kernel_takes_raw_bands_and_output_is_dense(rng):
+    # The matcher hands the kernel the raw bands (it transforms them itself), so the
+    # refinement can match them; --preprocess cade is the only mode it accepts.
+    assert CADE.transforms_itself and not CADE.accepts_raw
     pair = render_pair(rng, (64, 96), background=(5.0, 0.0))
-    result = learned.CadeNetwork()(color_agnostic(pair.left), color_agnostic(pair.right), DisparityRange(0, 16))
+    result = learned.CadeNetwork()(pair.left, pair.right, DisparityRange(0, 16))
     assert result.disparity.dtype == np.float32 and np.isfinite(result.disparity).all()
     assert result.valid.dtype == bool and result.valid.shape == pair.left.shape
+
+
+# ---- refinement: semi-global matching of the raw bands around the network's estimate
+
+REFINE_BANDS = {
+    "same band": lambda band: band,
+    "other filter (gain, gamma)": lambda band: 0.1 + 0.6 * band**1.8,
+    "inverted contrast": lambda band: 1.0 - (0.1 + 0.6 * band**1.8),
+}
+
+
+@pytest.mark.parametrize("other_band", REFINE_BANDS.values(), ids=REFINE_BANDS.keys())
+@pytest.mark.parametrize("offset", [-9.0, 5.0, 13.0])
+def test_refinement_corrects_an_estimate_that_is_off_within_its_radius(rng, offset, other_band):
+    pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
+    estimate = (pair.disparity + offset).astype(np.float32)  # a network that is off by `offset`
+    assert abs(offset) < learned.REFINE_RADIUS
+    refined = learned.refine_semiglobal(pair.left, other_band(pair.right), estimate)
+    error = np.abs(refined - pair.disparity)[pair.reliable]
+    assert np.median(error) < 0.3 and (error < 1).mean() > 0.9
+
+
+def test_refinement_radius_must_suit_opencv(rng):
+    band = rng.random((16, 64)).astype(np.float32)
+    with pytest.raises(ValueError, match="multiple of 8"):
+        learned.refine_semiglobal(band, band, np.zeros_like(band), radius=12)
+
+
+def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):
+    pair = render_pair(rng, (96, 192), background=(7.4, 0.03), foreground=(17.2, 0.0))
+    other = 0.1 + 0.6 * pair.right**1.8
+    errors = {}
+    for refine in (False, True):
+        result = learned.CadeNetwork(refine=refine)(pair.left, other, DisparityRange(0, 32))
+        errors[refine] = np.abs(result.disparity - pair.disparity)[pair.reliable]
+    assert (errors[True] < 0.5).mean() > (errors[False] < 0.5).mean() + 0.05
+    assert errors[True].mean() <= errors[False].mean()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.cost import CostVolume, census_cost, zncc_cost
+from cade_cli.matching.cost import CostVolume, census_cost, census_transform, rank_transform, zncc_cost
 from cade_cli.matching.disparity import (
     fill_invalid_along_rows,
     left_right_check,
@@ -29,6 +29,22 @@ def test_census_cost_matches_reference(rng, window, limits):
     slow = census_cost_reference(left, right, disparity_range, window=window)
     assert fast.dtype == np.uint8
     np.testing.assert_array_equal(fast, slow)
+
+
+@pytest.mark.parametrize("window", [3, 5, 7])
+def test_rank_is_the_census_bit_count(rng, window):
+    image = rng.random((11, 17)).astype(np.float32)
+    np.testing.assert_array_equal(rank_transform(image, window=window),
+                                  np.bitwise_count(census_transform(image, window=window)))
+
+
+def test_rank_ignores_gain_offset_and_gamma_and_flips_with_contrast(rng):
+    image = rng.random((20, 30)).astype(np.float32) + 0.05  # distinct values: no ties
+    rank = rank_transform(image)
+    assert rank.dtype == np.uint8 and rank.max() <= 48 and len(np.unique(rank)) > 20
+    np.testing.assert_array_equal(rank_transform(3.0 * image**2.2 + 7.0), rank)
+    inner = (slice(3, -3), slice(3, -3))  # replicated borders create ties
+    np.testing.assert_array_equal(rank_transform(1.0 - image)[inner], 48 - rank[inner])
 
 
 def test_zncc_cost_matches_reference_inside(rng):

@@ -29,10 +29,13 @@ MATCHERS: dict[str, Matcher] = {
                 zncc_sgm, 5, best_preprocess="none"),
         Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)",
                 OpenCvSgbm(), 5, best_preprocess="cade"),
-        # The network was trained on color-agnostic bands only; memory is bounded by
-        # strips and a pyramid, not by the range.
-        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v4)",
-                CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, volume_bytes=0),
+        # The network was trained on color-agnostic bands only (it applies the transform
+        # itself: its refinement matches the raw bands); memory is bounded by strips and
+        # a pyramid, not by the range.
+        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v4), "
+                "refined by SGM on rank-transformed raw bands within 16 px of its estimate",
+                CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, transforms_itself=True,
+                volume_bytes=0),
     )
 }
 

@@ -81,6 +81,10 @@ class Matcher:
     ``none`` / ``cade`` on the cross-spectral benchmark (benchmarks/cross_spectral.py)."""
     accepts_raw: bool = True
     """False for matchers that only work on color-agnostic bands (the CADE network)."""
+    transforms_itself: bool = False
+    """True for kernels that need the raw bands besides their CADE transform (the CADE
+    network refines its estimate on the raw bands): they get the raw bands and apply the
+    transform themselves where ``preprocess`` resolves to ``"cade"``."""
     volume_bytes: int = 20
     """Bytes the kernel holds per pixel and searched disparity (0: memory does not grow
     with the range); :func:`cade_cli.stereo.estimate_disparity` refuses requests beyond
@@ -115,7 +119,7 @@ class Matcher:
         left, right = check_pair(left, right, min_size=self.min_size)
         disparity_range = DisparityRange(int(min_disp), int(max_disp))
         disparity_range.check_for_width(left.shape[1])
-        if self.resolve_preprocess(preprocess) == "cade":
+        if self.resolve_preprocess(preprocess) == "cade" and not self.transforms_itself:
             left, right = color_agnostic(left), color_agnostic(right)
         return self.kernel(left, right, disparity_range)
 

@@ -55,6 +55,31 @@ def census_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     return signature
 
 
+def rank_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
+    """Rank of every pixel in its window: how many of its neighbours are darker than it.
+
+    The number of set bits of :func:`census_transform`'s signature (Zabih & Woodfill,
+    ECCV 1994), kept as an image: like Census it depends only on the order of
+    intensities, so any gain, offset or gamma change between bands leaves it unchanged,
+    and ordinary image matchers (OpenCV's SGBM) can run on it.
+
+    Returns:
+        (H, W) uint8 ranks in [0, window**2 - 1]; borders are replicated.
+    """
+    if window % 2 == 0 or window < 3:
+        raise ValueError(f"rank window must be odd and at least 3, got {window}")
+    radius = window // 2
+    height, width = image.shape
+    image = image.astype(np.float32, copy=False)
+    padded = np.pad(image, radius, mode="edge")
+    rank = np.zeros((height, width), np.uint8)
+    for dy in range(window):
+        for dx in range(window):
+            if dy != radius or dx != radius:
+                rank += padded[dy:dy + height, dx:dx + width] < image
+    return rank
+
+
 def census_cost(
     left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *, window: int = 7
 ) -> CostVolume:

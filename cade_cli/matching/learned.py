@@ -1,7 +1,7 @@
 """The learned CADE matcher: the shipped ONNX network run with onnxruntime.
 
-The network (trained by :mod:`cade_cli.train`, never imported here) takes two
-color-agnostic bands whose sides are multiples of its divisor and searches disparities
+The matcher gets the two raw bands. The network (trained by :mod:`cade_cli.train`,
+never imported here) takes their CADE transforms (color-agnostic bands) whose sides are multiples of its divisor and searches disparities
 0 .. ``max_disp`` - 1. Its card lists several exports of the same weights that differ
 only in ``max_disp`` (the trained range and wider ones). Around it this module:
 
@@ -11,6 +11,9 @@ only in ``max_disp`` (the trained range and wider ones). Around it this module:
   the widest cannot, runs it on a downscaled pair (factor 2, 4, ...) and upsamples,
   rescaling disparity;
 * pads to the divisor (replicating the border) and crops back;
+* refines the network's estimate at full resolution (:func:`refine_semiglobal`):
+  semi-global matching of the rank-transformed raw bands, searching only within
+  16 px of the network's disparity, where the network sees the match;
 * splits tall images into overlapping horizontal strips, so memory stays bounded
   (disparity is horizontal: a strip holds everything its rows need);
 * marks as invalid the pixels the right view cannot see (a nearer surface hides them,
@@ -36,7 +39,9 @@ import numpy as np
 from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
+from cade_cli.spectral import color_agnostic
 
 MODEL_NAME = "cade-v4"
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
@@ -154,90 +159,138 @@ def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: 
     return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
 
 
-SUBPIXEL_RADIUS = 2
-SUBPIXEL_WINDOW = 5
-SUBPIXEL_MIN_ZNCC = 0.5
+REFINE_RADIUS = 16
+"""Half-width (px, at full resolution) of the search around the network's disparity that
+:func:`refine_semiglobal` makes; a multiple of 8 (OpenCV searches multiples of 16)."""
+REFINE_RANK_WINDOW = 7
+REFINE_BLOCK = 5
+REFINE_P1, REFINE_P2 = 8, 64
+"""SGBM smoothness penalties per pixel of the block (OpenCV's usual 8 and 32 x block area,
+with a stiffer P2: the network already has the surface's shape, the search corrects it)."""
 
 
-def refine_subpixel(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *,
-                    radius: int = SUBPIXEL_RADIUS, window: int = SUBPIXEL_WINDOW,
-                    min_zncc: float = SUBPIXEL_MIN_ZNCC) -> np.ndarray:
-    """Sharpen the network's disparity with a local ZNCC search at full resolution.
+REFINE_SIGN_BLUR = 31
+"""Side of the box blur applied to both bands before their correlation decides whether
+one is the other's contrast-inverted version."""
 
-    For each pixel, ZNCC over a ``window`` x ``window`` patch is evaluated at the integer
-    disparities round(d) - radius .. round(d) + radius (the right band sampled per pixel,
-    so the patch follows the network's surface); the best one, refined by a parabola
-    through its neighbours, replaces d where it is an interior peak with ZNCC above
-    ``min_zncc``. Elsewhere (flat or ambiguous patches) d is kept.
+
+def correlation(left: np.ndarray, right: np.ndarray) -> float:
+    """Pearson correlation of two images' pixels (0 where either is constant)."""
+    left, right = (image.astype(np.float64).ravel() for image in (left, right))
+    left, right = left - left.mean(), right - right.mean()
+    norm = np.sqrt(np.dot(left, left) * np.dot(right, right))
+    return float(np.dot(left, right) / norm) if norm > 0 else 0.0
+
+
+def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *,
+                      radius: int = REFINE_RADIUS) -> np.ndarray:
+    """Correct the network's disparity by semi-global matching of the raw bands around it.
+
+    The network works at 1/4 resolution on color-agnostic bands: robust across bands, but
+    blurred at edges and in fine texture. This step matches the full-resolution bands
+    again, in the network's neighbourhood only:
+
+    1. both bands become rank images (:func:`~cade_cli.matching.cost.rank_transform`,
+       7x7): they depend only on the order of intensities, so a gain, offset or gamma
+       change between bands does not alter them, and fine texture is kept;
+    2. the right rank image is warped by the rounded network disparity ``b``, so a pixel
+       whose true disparity is ``b + r`` matches at residual ``r``; where the bands are
+       anti-correlated along those matches (blurred 31x31, over the whole image: a
+       filter pair that inverts contrast), the warped ranks are flipped (48 - rank).
+       An inversion confined to part of the scene is not flipped; there the ranks
+       disagree and the rejections of step 4 leave most of it to the network;
+    3. OpenCV's StereoSGBM (3-way mode, 5x5 blocks) searches ``r`` in
+       [-``radius``, ``radius``) on that pair, with sub-pixel output; its smoothness term
+       acts on the residual, i.e. it keeps the network's surface shape and corrects it;
+    4. ``b + r`` replaces the network's value where SGBM found an interior winner; at the
+       ends of the search (the truth may lie beyond), or where SGBM rejects the match
+       (a runner-up within 20 % of the best cost, or a speckle: a patch under 100 px
+       that differs by more than 2 px from its surroundings), the network's value is
+       kept. Where the bands are unrelated (e.g. the R and G planes of random colour
+       textures) the ranks disagree and these rejections leave the network in charge.
+
+    Warping by a per-pixel shift is exact where the network's disparity is locally
+    constant and an approximation across its steps, where the search then has to
+    absorb the difference.
 
     Args:
-        left, right: (H, W) float32 color-agnostic bands.
-        disparity: (H, W) float32 network output for ``left``.
+        left, right: (H, W) float32 raw bands (any units; only their order matters).
+        disparity: (H, W) float32 network disparity for ``left``, in pixels.
+        radius: search half-width in pixels, a positive multiple of 8.
+
+    Returns:
+        (H, W) float32 refined disparity.
     """
+    if radius <= 0 or radius % 8:
+        raise ValueError(f"refinement radius must be a positive multiple of 8, got {radius}")
     height, width = left.shape
-    base = np.rint(disparity).astype(np.int32)
-    landing = (np.arange(width, dtype=np.int32)[None, :] - base).astype(np.float32)
+    base = np.rint(disparity).astype(np.float32)
+    columns = np.arange(width, dtype=np.float32)[None, :] - base
     rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width))
-    size = (window, window)
+    # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
+    top = REFINE_RANK_WINDOW**2 - 1
+    left_rank, right_rank = (rank_transform(band, window=REFINE_RANK_WINDOW) for band in (left, right))
 
-    def box(image: np.ndarray) -> np.ndarray:
-        return cv2.blur(image, size, borderType=cv2.BORDER_REFLECT)
+    def warp(image: np.ndarray) -> np.ndarray:
+        return cv2.remap(image, columns, rows, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
 
-    left_mean = box(left)
-    left_var = box(left * left) - left_mean * left_mean
-    scores = []
-    for offset in range(-radius, radius + 1):
-        # right(y, x - base - offset), border columns replicated (integer positions: exact)
-        warped = cv2.remap(right, landing - offset, rows, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        warped_mean = box(warped)
-        covariance = box(left * warped) - left_mean * warped_mean
-        warped_var = box(warped * warped) - warped_mean * warped_mean
-        scores.append(covariance / np.sqrt(np.maximum(left_var * warped_var, 1e-12)))
-    # Per-pixel argmax (first maximum) and its neighbours, one plane at a time: on a
-    # (2r+1, H, W) stack, axis-0 argmax and gathers cost more than all the ZNCC above.
-    best, peak = np.zeros((height, width), np.int8), scores[0]
-    for index in range(1, len(scores)):
-        better = scores[index] > peak
-        best, peak = np.where(better, np.int8(index), best), np.where(better, scores[index], peak)
-    before, after = np.zeros_like(peak), np.zeros_like(peak)
-    for index in range(1, 2 * radius):
-        at = best == index
-        before, after = np.where(at, scores[index - 1], before), np.where(at, scores[index + 1], after)
-    interior = (best > 0) & (best < 2 * radius)
-    curvature = before - 2 * peak + after
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(curvature < 0, 0.5 * (before - after) / curvature, 0.0)
-    refined = base + (best - radius) + np.clip(delta, -0.5, 0.5)
-    accept = interior & (peak >= min_zncc) & (left_var > 1e-6)
-    return np.where(accept, refined, disparity).astype(np.float32)
+    warped = warp(right_rank)
+    # Where one band is the other's negative (contrast inverted), so is its rank: flip it.
+    # Judged on blurred bands, so the sign holds where the network is many pixels off.
+    blurred_left, blurred_right = (cv2.blur(band.astype(np.float32), (REFINE_SIGN_BLUR, REFINE_SIGN_BLUR))
+                                   for band in (left, right))
+    if correlation(blurred_left, warp(blurred_right)) < 0:
+        warped = np.uint8(top) - warped
+    # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
+    scale = np.uint8(240 // top)
+    left_rank, warped = left_rank * scale, warped * scale
+    area = REFINE_BLOCK * REFINE_BLOCK
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=-radius, numDisparities=2 * radius, blockSize=REFINE_BLOCK,
+        P1=REFINE_P1 * area, P2=REFINE_P2 * area, disp12MaxDiff=-1, uniquenessRatio=20,
+        speckleWindowSize=100, speckleRange=2, preFilterCap=15, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    # OpenCV leaves the first minDisparity + numDisparities columns unmatched (and some
+    # at the right for a negative minimum): pad, so that happens outside the image.
+    pad = 2 * radius
+    left_rank, warped = (cv2.copyMakeBorder(image, 0, 0, pad, pad, cv2.BORDER_REPLICATE)
+                         for image in (left_rank, warped))
+    residual = matcher.compute(left_rank, warped)[:, pad:pad + width].astype(np.float32) / np.float32(16)
+    interior = (residual > -radius) & (residual < radius - 1)  # rejects are -radius - 1
+    return np.where(interior, base + residual, disparity).astype(np.float32)
 
 
 class CadeNetwork:
     """Kernel of the ``cade`` matcher (see the module docstring)."""
 
-    def __init__(self, name: str = MODEL_NAME, *, subpixel: bool = True):
+    def __init__(self, name: str = MODEL_NAME, *, refine: bool = True):
         self.name = name
-        self.subpixel = subpixel
+        self.refine = refine
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
+        """Disparity of the raw bands ``left`` against ``right`` (the network sees their
+        CADE transform; the refinement matches the raw bands)."""
         card = ModelCard.load(self.name)
         variant, factor = card.variant_for(disparity_range.count - 1)
         session = _session(variant.path, variant.sha256)
         height, width = left.shape
-        right = shift_right_view(right, disparity_range.minimum)
+        minimum = disparity_range.minimum
+        right = shift_right_view(right, minimum)
+        left_band, right_band = color_agnostic(left), color_agnostic(right)
         if factor > 1:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))
-            left_small, right_small = (cv2.resize(band, size, interpolation=cv2.INTER_AREA) for band in (left, right))
-        else:
-            left_small, right_small = left, right
-        disparity = self._run(session, card.divisor, left_small, right_small)
-        if self.subpixel:
-            disparity = refine_subpixel(left_small, right_small, disparity)
+            left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)
+                                     for band in (left_band, right_band))
+        network = self._run(session, card.divisor, left_band, right_band)
         if factor > 1:
-            disparity = cv2.resize(disparity, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
-                width / left_small.shape[1])
-        disparity = np.clip(disparity + disparity_range.minimum, disparity_range.minimum, disparity_range.maximum)
+            network = cv2.resize(network, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
+                width / left_band.shape[1])
+        disparity = np.clip(network + minimum, minimum, disparity_range.maximum)
+        # Visibility is judged on the network's surface: the refinement's small-scale
+        # corrections would scatter it. Occluded pixels have nothing to match: not refined.
         valid = visible_in_right_view(disparity)
+        if self.refine:
+            refined = refine_semiglobal(left, right, disparity - minimum) + minimum
+            disparity = np.clip(np.where(valid, refined, disparity), minimum, disparity_range.maximum)
         return DisparityResult(fill_invalid_along_rows(disparity, valid), valid)
 
     @staticmethod
