@@ -10,6 +10,7 @@ out-of-view match never beats an in-view one.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import cv2
@@ -40,18 +41,9 @@ def census_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     """
     if window % 2 == 0 or not 3 <= window <= 7:
         raise ValueError(f"census window must be odd and in 3..7, got {window}")
-    radius = window // 2
-    height, width = image.shape
-    padded = np.pad(image.astype(np.float32, copy=False), radius, mode="edge")
-    signature = np.zeros((height, width), np.uint64)
-    bit = np.uint64(0)
-    for dy in range(window):
-        for dx in range(window):
-            if dy == radius and dx == radius:
-                continue
-            neighbour = padded[dy:dy + height, dx:dx + width]
-            signature |= (neighbour < image).astype(np.uint64) << bit
-            bit += np.uint64(1)
+    signature = np.zeros(image.shape, np.uint64)
+    for bit, darker in enumerate(_darker_neighbours(image, window)):
+        signature |= darker.astype(np.uint64) << np.uint64(bit)
     return signature
 
 
@@ -68,16 +60,24 @@ def rank_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     """
     if window % 2 == 0 or window < 3:
         raise ValueError(f"rank window must be odd and at least 3, got {window}")
+    image = image.astype(np.float32, copy=False)
+    rank = np.zeros(image.shape, np.uint8)
+    for darker in _darker_neighbours(image, window):
+        rank += darker
+    return rank
+
+
+def _darker_neighbours(image: np.ndarray, window: int) -> Iterator[np.ndarray]:
+    """For each neighbour in a ``window`` x ``window`` box (row by row, centre skipped),
+    the (H, W) bool plane ``neighbour < centre``; the float32 copy of ``image`` is padded
+    by replicating its borders."""
     radius = window // 2
     height, width = image.shape
-    image = image.astype(np.float32, copy=False)
-    padded = np.pad(image, radius, mode="edge")
-    rank = np.zeros((height, width), np.uint8)
+    padded = np.pad(image.astype(np.float32, copy=False), radius, mode="edge")
     for dy in range(window):
         for dx in range(window):
             if dy != radius or dx != radius:
-                rank += padded[dy:dy + height, dx:dx + width] < image
-    return rank
+                yield padded[dy:dy + height, dx:dx + width] < image
 
 
 def census_cost(

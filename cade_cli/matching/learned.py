@@ -167,8 +167,6 @@ REFINE_BLOCK = 5
 REFINE_P1, REFINE_P2 = 8, 64
 """SGBM smoothness penalties per pixel of the block (OpenCV's usual 8 and 32 x block area,
 with a stiffer P2: the network already has the surface's shape, the search corrects it)."""
-
-
 REFINE_SIGN_BLUR = 31
 """Side of the box blur applied to both bands before their correlation decides whether
 one is the other's contrast-inverted version."""
@@ -227,7 +225,6 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     base = np.rint(disparity).astype(np.float32)
     columns = np.arange(width, dtype=np.float32)[None, :] - base
     rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width))
-    # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
     top = REFINE_RANK_WINDOW**2 - 1
     left_rank, right_rank = (rank_transform(band, window=REFINE_RANK_WINDOW) for band in (left, right))
 
