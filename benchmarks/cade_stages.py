@@ -26,6 +26,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from cade_cli.allocator import retain_freed_memory
 from cade_cli.datasets import read_calib
 from cade_cli.matching import learned
 from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
@@ -49,6 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3, help="timed runs per measurement; the fastest is kept")
     parser.add_argument("--markdown", type=Path, help="also write the report here")
     args = parser.parse_args(argv)
+    retain_freed_memory()  # as the cade command does
     threads = int(os.environ.get("OMP_NUM_THREADS") or 0)
     if threads:
         cv2.setNumThreads(threads)

@@ -79,6 +79,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="Pandora LR check; fast (default) reads the right view from the left SGM volume, as census-sgm does; "
         "accurate runs census + SGM a second time from the right view",
     )
+    parser.add_argument(
+        "--default-malloc",
+        action="store_true",
+        help="leave glibc's malloc thresholds as they are (default: set them as the cade command does, "
+        "cade_cli.allocator.retain_freed_memory)",
+    )
     parser.add_argument("--markdown", type=Path, default=None, help="also write the report to this file")
     args = parser.parse_args(argv)
     if args.repeat < 1:
@@ -416,6 +422,7 @@ def build_report(rows: list[Row], args, threads_line: str, notes: list[str], pan
         f"- Machine: {usable_cpus()} usable CPU(s) (os.cpu_count() = {os.cpu_count()}), {cpu_model()}",
         f"- Software: {versions()}",
         f"- Threads: {threads_line}",
+        f"- Allocator: {args.allocator_line}",
         f"- Command: `{shlex.join([interpreter(), *sys.argv])}` (run from `{os.getcwd()}`)",
         (
             f"- Data: {args.data_dir} — {len(scenes)} scene(s), grey (cv2 luminance) float32 in [0, 1], "
@@ -500,6 +507,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     threads = args.threads or int(os.environ.get("OMP_NUM_THREADS", "0") or 0) or usable_cpus()
     set_thread_env(threads)
+    from cade_cli.allocator import MMAP_THRESHOLD, TRIM_THRESHOLD, retain_freed_memory
+
+    if args.default_malloc:
+        args.allocator_line = "glibc defaults (--default-malloc)"
+    elif retain_freed_memory():
+        args.allocator_line = (f"glibc mmap threshold {MMAP_THRESHOLD >> 20} MiB, trim threshold {TRIM_THRESHOLD >> 20} "
+                               "MiB (cade_cli.allocator.retain_freed_memory, as the cade command sets them)")
+    else:
+        args.allocator_line = "the C library's defaults (not glibc)"
 
     import gc
 

@@ -15,6 +15,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from cade_cli.allocator import retain_freed_memory
 from cade_cli.datasets import get_dataset
 from cade_cli.matching import get_matcher
 from cade_cli.metrics import METRIC_NAMES, score
@@ -144,7 +145,7 @@ def _map(units: list[Unit], jobs: int, save_dir: str | None) -> Iterable[tuple[U
         for unit in units:
             yield unit, run_unit(unit, save_dir)
         return
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with ProcessPoolExecutor(max_workers=jobs, initializer=retain_freed_memory) as pool:
         futures = [pool.submit(run_unit, unit, save_dir) for unit in units]
         for unit, future in zip(units, futures):  # in submission order: deterministic
             yield unit, future.result()

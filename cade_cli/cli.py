@@ -338,7 +338,10 @@ def _note(message: str) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, turning every user error into one stderr line."""
     os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")  # decoders would print their own warnings
+    from cade_cli.allocator import retain_freed_memory
     from cade_cli.errors import CadeError
+
+    retain_freed_memory()
 
     argv = sys.argv[1:] if argv is None else argv
     try:

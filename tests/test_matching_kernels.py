@@ -138,6 +138,24 @@ def test_fill_takes_the_background_side():
     assert np.isnan(disparity[0, 0])  # input untouched
 
 
+def test_fill_matches_a_per_pixel_reference_on_random_masks(rng):
+    for _ in range(200):
+        height, width = rng.integers(1, 9, size=2)
+        disparity = rng.random((height, width)).astype(np.float32)
+        valid = rng.random((height, width)) < rng.random()
+        expected = disparity.copy()
+        if valid.any() and not valid.all():
+            for y, x in zip(*np.nonzero(~valid)):
+                row = np.nonzero(valid[y])[0]
+                if row.size == 0:
+                    expected[y, x] = np.median(disparity[valid])
+                    continue
+                sides = [disparity[y, row[row < x].max()]] if (row < x).any() else []
+                sides += [disparity[y, row[row > x].min()]] if (row > x).any() else []
+                expected[y, x] = min(sides)
+        assert np.array_equal(fill_invalid_along_rows(disparity, valid), expected)
+
+
 def test_fill_uses_global_median_for_empty_rows():
     disparity = np.array([[1.0, 2.0, 9.0], [0.0, 0.0, 0.0]], np.float32)
     valid = np.array([[True, True, True], [False, False, False]])

@@ -15,6 +15,7 @@ from cade_cli.train.fit import GeneratedBatches, TrainConfig, learning_rate, tra
 from cade_cli.train.model import (  # noqa: E402
     LEGACY_DESIGN,
     CadeNet,
+    ExportWrapper,
     Refinement,
     adapt_state_dict,
     groupwise_correlation,
@@ -86,6 +87,7 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
     assert [v["file"] for v in card["variants"]] == ["tiny-8.onnx", "tiny.onnx", "tiny-40.onnx"]
     assert all(len(v["sha256"]) == 64 for v in card["variants"])
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
+    assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
 
 
 def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
@@ -99,6 +101,35 @@ def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
     path = tmp_path / "net.onnx"
     export_onnx(net, path)
     assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3
+
+
+@pytest.mark.parametrize("output", ["coarse", "disparity"])
+def test_export_output_picks_the_map_and_leaves_the_refinement_net_out_of_coarse_graphs(tmp_path: Path, output):
+    import onnx
+
+    from cade_cli.train.export import export_onnx
+
+    torch.manual_seed(0)
+    net = CadeNet(max_disp=24).eval()
+    torch.nn.init.normal_(net.refinement.net[-1].weight, std=0.1)  # a refinement that changes the map
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path, output=output)
+    assert verify_onnx(net, path, output=output, sizes=((40, 56),)) < 1e-3
+    left, right = torch.rand(1, 1, 40, 56), torch.rand(1, 1, 40, 56)
+    with torch.no_grad():
+        out = net(left, right)
+        exported, _ = ExportWrapper(net, output)(left, right)
+    assert torch.equal(exported, out[output]) and not torch.allclose(out["coarse"], out["disparity"])
+    # The refinement net's 2-channel input convolution is in the graph only when exported.
+    first_refinement = net.refinement.net[0][0].weight.detach().numpy()
+    initializers = [onnx.numpy_helper.to_array(t) for t in onnx.load(str(path)).graph.initializer]
+    present = any(a.shape == first_refinement.shape and np.allclose(a, first_refinement) for a in initializers)
+    assert present == (output == "disparity")
+
+
+def test_export_output_must_be_known():
+    with pytest.raises(ValueError, match="coarse"):
+        ExportWrapper(CadeNet(max_disp=16), "refined")
 
 
 def test_refinement_sees_a_map_beyond_its_scale_as_relative_depth():
@@ -144,3 +175,4 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
     assert card["design"] == {"padding": "zeros", "entry_kernel": 1}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
+    assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")

@@ -58,13 +58,20 @@ def export(
     checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt.")],
     onnx_path: Annotated[Path, typer.Option("--onnx", help="Where to write the model.")] = Path("models/cade-v4.onnx"),
     hardware: Annotated[str, typer.Option(help="Where the training ran, for the card.")] = "",
+    output: Annotated[str, typer.Option(help="The disparity output: disparity (after the refinement net; "
+                                             "shipped) or coarse (soft-argmin upsampled: faster, less accurate).")]
+    = "disparity",
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
     against PyTorch, write the JSON card beside them."""
     from cade_cli.train.export import export_checkpoint
 
+    from cade_cli.train.model import EXPORT_OUTPUTS
+
+    if output not in EXPORT_OUTPUTS:
+        raise typer.BadParameter(f"must be one of {', '.join(EXPORT_OUTPUTS)}", param_hint="--output")
     card = export_checkpoint(checkpoint, onnx_path, onnx_path.with_suffix(".json"),
-                             extra={"hardware": hardware} if hardware else None)
+                             extra={"hardware": hardware} if hardware else None, output=output)
     for variant in card["variants"]:
         path = onnx_path.with_name(variant["file"])
         print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, range {variant['max_disp']}), "

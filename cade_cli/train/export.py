@@ -3,7 +3,10 @@
 The exported graph is ``forward(left, right) -> (disparity, uncertainty)``: inputs
 ``left``/``right`` (1, 1, H, W) float32 color-agnostic bands with H and W multiples of
 :data:`~cade_cli.train.model.DIVISOR`; outputs (1, 1, H, W) float32 disparity and
-uncertainty in pixels. Height and width are dynamic.
+uncertainty in pixels. Height and width are dynamic. By default ``disparity`` is the
+refinement net's output; ``output="coarse"`` exports the soft-argmin map upsampled to
+full resolution instead, without the refinement net
+(:data:`~cade_cli.train.model.EXPORT_OUTPUTS`; the card records which).
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ import numpy as np
 import torch
 
 from cade_cli.checksum import file_sha256
-from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, design_of, parameter_count
+from cade_cli.train.model import DIVISOR, EXPORT_OUTPUTS, CadeNet, ExportWrapper, design_of, parameter_count
 
 OPSET = 17
 INPUT_NAMES = ["left", "right"]
@@ -45,9 +48,10 @@ def with_range(net: CadeNet, max_disp: int) -> CadeNet:
     return wide.eval()
 
 
-def export_onnx(net: CadeNet, path: Path, *, sample_size: tuple[int, int] = (192, 256)) -> None:
-    """Write ``net`` as ONNX (legacy TorchScript exporter: no onnxscript dependency)."""
-    wrapper = ExportWrapper(net).eval()
+def export_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sample_size: tuple[int, int] = (192, 256)) -> None:
+    """Write ``net`` as ONNX (legacy TorchScript exporter: no onnxscript dependency);
+    ``output``: which map becomes the ``disparity`` output (:data:`EXPORT_OUTPUTS`)."""
+    wrapper = ExportWrapper(net, output).eval()
     example = (torch.rand(1, 1, *sample_size), torch.rand(1, 1, *sample_size))
     temporary = path.with_name(path.name + ".tmp")
     with warnings.catch_warnings():  # "constant folding not applied" for the cost volume's slices
@@ -60,14 +64,15 @@ def export_onnx(net: CadeNet, path: Path, *, sample_size: tuple[int, int] = (192
     temporary.replace(path)
 
 
-def verify_onnx(net: CadeNet, path: Path, *, sizes=((96, 128), (200, 328)), seed: int = 0) -> float:
+def verify_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sizes=((96, 128), (200, 328)),
+                seed: int = 0) -> float:
     """Max |ONNX - PyTorch| over both outputs on random inputs of several sizes (px)."""
     import onnxruntime as ort
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(seed)
     worst = 0.0
-    wrapper = ExportWrapper(net).eval()
+    wrapper = ExportWrapper(net, output).eval()
     for height, width in sizes:
         left, right = (rng.random((1, 1, height, width), dtype=np.float32) for _ in range(2))
         with torch.no_grad():
@@ -78,7 +83,7 @@ def verify_onnx(net: CadeNet, path: Path, *, sizes=((96, 128), (200, 328)), seed
 
 
 def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None,
-                      other_ranges: tuple[int, ...] = OTHER_RANGES) -> dict:
+                      other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity") -> dict:
     """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
 
     The trained range goes to ``onnx_path``, another range R to ``<stem>-R.onnx`` beside
@@ -89,13 +94,15 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
     variants, max_difference = [], 0.0
     for max_disp, path in targets:
         variant_net = with_range(net, max_disp)
-        export_onnx(variant_net, path)
-        max_difference = max(max_difference, verify_onnx(variant_net, path))
+        export_onnx(variant_net, path, output=output)
+        max_difference = max(max_difference, verify_onnx(variant_net, path, output=output))
         variants.append({"max_disp": max_disp, "file": path.name, "sha256": file_sha256(path)})
     card = {
         "name": onnx_path.stem,
         "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
-                        "-> soft-argmin -> full-res refinement",
+                        "-> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
+                                            " -> bilinear x4 (refinement net trained, not exported)"),
+        "output": output,
         "parameters": parameter_count(net),
         "design": net.design,
         "trained_max_disp": net.max_disp,

@@ -8,6 +8,8 @@ Design (justified in models/README.md):
              standard deviation of that distribution as an uncertainty;
   refine     full-resolution 2D residual refinement guided by the left band
              (dilated convolutions, 16 channels), for edges and sub-pixel detail.
+             An export can leave it out (:class:`ExportWrapper`, ``output="coarse"``):
+             faster, less accurate on unseen data (models/README.md, session 8).
 
 Inputs are color-agnostic bands (cade_cli.spectral.color_agnostic), (B, 1, H, W) with H
 and W multiples of :data:`DIVISOR`. Everything exports to ONNX with standard ops.
@@ -151,9 +153,10 @@ class CadeNet(nn.Module):
         self.aggregation = Aggregation(groups, channels3d, entry_kernel)
         self.refinement = Refinement(refine_channels, padding)
 
-    def forward(self, left: torch.Tensor, right: torch.Tensor) -> dict[str, torch.Tensor]:
-        """left, right: (B, 1, H, W) -> dict with ``disparity`` (B, 1, H, W) refined,
-        ``coarse`` (B, 1, H, W) soft-argmin upsampled, ``uncertainty`` (B, 1, H, W) px."""
+    def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
+        """left, right: (B, 1, H, W) -> dict with ``disparity`` (B, 1, H, W) refined (only
+        when ``refine``), ``coarse`` (B, 1, H, W) soft-argmin upsampled, ``uncertainty``
+        (B, 1, H, W) px."""
         both = self.features(torch.cat([left, right], dim=0))
         feat_left, feat_right = both.chunk(2, dim=0)
         logits = self.aggregation(groupwise_correlation(feat_left, feat_right, self.levels, self.groups))
@@ -165,20 +168,33 @@ class CadeNet(nn.Module):
         coarse = 4.0 * F.interpolate(mean, size=size, mode="bilinear", align_corners=False)
         uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear",
                                           align_corners=False)
-        disparity = self.refinement(coarse, left, DISPARITY_SCALE)
-        return {"disparity": disparity, "coarse": coarse, "uncertainty": uncertainty}
+        out = {"coarse": coarse, "uncertainty": uncertainty}
+        if refine:
+            out["disparity"] = self.refinement(coarse, left, DISPARITY_SCALE)
+        return out
+
+
+EXPORT_OUTPUTS = ("coarse", "disparity")
+"""What an export's ``disparity`` output is: the soft-argmin map upsampled to full
+resolution (``coarse``: the refinement net is left out of the graph), or the refinement
+net's output (``disparity``)."""
 
 
 class ExportWrapper(nn.Module):
-    """``forward(left, right) -> (disparity, uncertainty)`` for ONNX: fixed eval settings."""
+    """``forward(left, right) -> (disparity, uncertainty)`` for ONNX: fixed eval settings.
 
-    def __init__(self, net: CadeNet):
+    ``output`` picks which of the net's maps becomes ``disparity`` (:data:`EXPORT_OUTPUTS`);
+    with ``"coarse"`` the refinement net is not traced, so it costs nothing at run time."""
+
+    def __init__(self, net: CadeNet, output: str = "disparity"):
         super().__init__()
-        self.net = net.eval()
+        if output not in EXPORT_OUTPUTS:
+            raise ValueError(f"output must be one of {', '.join(EXPORT_OUTPUTS)}, got {output!r}")
+        self.net, self.output = net.eval(), output
 
     def forward(self, left: torch.Tensor, right: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        out = self.net(left, right)
-        return out["disparity"], out["uncertainty"]
+        out = self.net(left, right, refine=self.output == "disparity")
+        return out[self.output], out["uncertainty"]
 
 
 LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3}
