@@ -227,12 +227,14 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     height, width = left.shape
     base = np.rint(disparity).astype(np.float32)
     columns = np.arange(width, dtype=np.float32)[None, :] - base
-    rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width))
+    rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width)).copy()
     top = REFINE_RANK_WINDOW**2 - 1
     left_rank, right_rank = (rank_transform(band, window=REFINE_RANK_WINDOW) for band in (left, right))
 
-    def warp(image: np.ndarray) -> np.ndarray:
-        return cv2.remap(image, columns, rows, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    def warp(image: np.ndarray, at=np.s_[:, :]) -> np.ndarray:
+        """``image`` at each left pixel's match (nearest), for the left pixels ``at`` selects."""
+        return cv2.remap(image, np.ascontiguousarray(columns[at]), np.ascontiguousarray(rows[at]),
+                         cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
 
     warped = warp(right_rank)
     # Where one band is the other's negative (contrast inverted), so is its rank: flip it.
@@ -241,9 +243,7 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     blurred_left, blurred_right = (cv2.blur(band.astype(np.float32), (REFINE_SIGN_BLUR, REFINE_SIGN_BLUR))
                                    for band in (left, right))
     step = np.s_[::REFINE_SIGN_STEP, ::REFINE_SIGN_STEP]
-    aligned_right = cv2.remap(blurred_right, np.ascontiguousarray(columns[step]), np.ascontiguousarray(rows[step]),
-                              cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    if correlation(blurred_left[step], aligned_right) < 0:
+    if correlation(blurred_left[step], warp(blurred_right, step)) < 0:
         warped = np.uint8(top) - warped
     # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
     scale = np.uint8(240 // top)
