@@ -137,8 +137,12 @@ def _select_band(image: np.ndarray, band: int, *, count: int, path: Path) -> np.
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec. 601 luminance ``0.299 R + 0.587 G + 0.114 B`` of (H, W, 3+) RGB(A); (H, W) float32."""
-    weights = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
-    return np.tensordot(np.asarray(rgb, np.float32)[:, :, :3], weights, axes=([2], [0])).astype(np.float32)
+    # A weighted sum, not np.tensordot: BLAS would leave its threads busy-waiting on the
+    # cores the matcher needs next (cade_cli.matching.learned.correlation).
+    rgb = np.asarray(rgb)
+    red, green, blue = (rgb[:, :, channel].astype(np.float32) for channel in range(3))
+    weight_red, weight_green, weight_blue = (np.float32(weight) for weight in LUMINANCE_WEIGHTS)
+    return weight_red * red + weight_green * green + weight_blue * blue
 
 
 def _luminance_note(path: Path, count: int) -> str:

@@ -29,6 +29,37 @@ def test_shipped_model_matches_its_card():
         learned._session(variant.path, variant.sha256)  # verifies the sha256
 
 
+def test_sessions_do_not_busy_wait_after_a_run():
+    """Each run hands the cores to OpenCV's refinement; spinning onnxruntime threads would hold them."""
+    variant = ModelCard.load().variants[0]
+    options = learned._session(variant.path, variant.sha256).get_session_options()
+    assert options.get_session_config_entry(learned.ALLOW_SPINNING) == "0"
+
+
+def test_the_matcher_makes_no_blas_call(rng, monkeypatch):
+    """A BLAS call leaves OpenBLAS's threads busy-waiting on the two cores the network and
+    OpenCV need next; one np.dot in the inversion check cost about a fifth of the matcher's
+    time (models/README.md, session 9)."""
+    def refuse(*args, **kwargs):
+        raise AssertionError("BLAS routine called by the cade matcher")
+
+    for name in ("dot", "vdot", "inner", "matmul", "tensordot", "einsum"):
+        monkeypatch.setattr(np, name, refuse)
+    pair = render_pair(rng, (96, 160), background=(9.3, 0.0))
+    result = CADE(pair.left, 1.0 - pair.right, max_disp=32)  # inverted contrast: the check's correlation runs
+    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (40, 3)])
+def test_correlation_is_pearsons(rng, shape):
+    left, right = rng.random(shape, dtype=np.float32), rng.random(shape, dtype=np.float32)
+    right += 0.5 * left
+    expected = np.corrcoef(left.ravel().astype(np.float64), right.ravel().astype(np.float64))[0, 1]
+    assert learned.correlation(left, right) == pytest.approx(expected, rel=1e-9)
+    assert learned.correlation(left, -right) == pytest.approx(-expected, rel=1e-9)
+    assert learned.correlation(left, np.full(shape, 0.3, np.float32)) == 0.0
+
+
 def test_a_damaged_model_is_refused(tmp_path: Path, monkeypatch):
     card = ModelCard.load()
     for variant in card.variants:

@@ -79,6 +79,13 @@ def test_luminance_weights():
         np.testing.assert_allclose(luminance(rgb), weight, rtol=1e-6)
 
 
+def test_luminance_of_integer_images_is_float32():
+    rgba = np.array([[[255, 0, 0, 7], [10, 20, 30, 255]]], np.uint8)
+    grey = luminance(rgba)
+    assert grey.dtype == np.float32 and grey.shape == (1, 2)
+    np.testing.assert_allclose(grey, [[0.299 * 255, 0.299 * 10 + 0.587 * 20 + 0.114 * 30]], rtol=1e-6)
+
+
 def test_native_matches_grey(rng):
     left_rgb, right_rgb = _pair(rng)
     matcher = RecordingMatcher()

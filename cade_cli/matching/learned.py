@@ -53,6 +53,8 @@ STRIP_OVERLAP = 32
 """Rows shared by neighbouring strips; each keeps the half nearer its own centre."""
 RANGE_MARGIN = 8
 """The network's top levels are kept free: spans up to ``max_disp - RANGE_MARGIN`` run at full size."""
+ALLOW_SPINNING = "session.intra_op.allow_spinning"
+"""onnxruntime's session option that lets its threads busy-wait for work after a run; off here."""
 
 
 def model_dir() -> Path:
@@ -114,6 +116,9 @@ def _session(path: Path, sha256: str):
     options = ort.SessionOptions()
     options.log_severity_level = 3
     options.intra_op_num_threads = int(os.environ.get("OMP_NUM_THREADS") or 0)  # 0: one per physical core
+    # The matcher hands the cores to OpenCV (refinement) right after each run; spinning
+    # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
+    options.add_session_config_entry(ALLOW_SPINNING, "0")
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 
@@ -176,11 +181,14 @@ REFINE_SIGN_STEP = 4
 
 
 def correlation(left: np.ndarray, right: np.ndarray) -> float:
-    """Pearson correlation of two images' pixels (0 where either is constant)."""
+    """Pearson correlation of two images' pixels (0 where either is constant).
+
+    Sums, not ``np.dot``: a BLAS call leaves OpenBLAS's threads busy-waiting for the next
+    one, on the cores onnxruntime and OpenCV need next (models/README.md, session 9)."""
     left, right = (image.astype(np.float64).ravel() for image in (left, right))
     left, right = left - left.mean(), right - right.mean()
-    norm = np.sqrt(np.dot(left, left) * np.dot(right, right))
-    return float(np.dot(left, right) / norm) if norm > 0 else 0.0
+    norm = np.sqrt(np.sum(left * left) * np.sum(right * right))
+    return float(np.sum(left * right) / norm) if norm > 0 else 0.0
 
 
 def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *,
