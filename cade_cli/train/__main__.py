@@ -65,7 +65,6 @@ def export(
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
     against PyTorch, write the JSON card beside them."""
     from cade_cli.train.export import export_checkpoint
-
     from cade_cli.train.model import EXPORT_OUTPUTS
 
     if output not in EXPORT_OUTPUTS:
