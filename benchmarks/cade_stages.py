@@ -4,7 +4,7 @@
 For each MiddEval3 pair (grey, float32 in [0, 1], range [0, ndisp - 1] from calib.txt)
 the stages of :class:`cade_cli.matching.learned.CadeNetwork` are timed separately:
 the color agnostic transform of both bands, the network (the variant the runtime
-picks), the refinement (SGM of the raw bands around the network), and validity plus fill. Then the network alone is timed
+picks), the refinement (SGM of the raw bands over the whole range), and validity plus fill. Then the network alone is timed
 with every exported variant on the same pairs, and a least-squares line
 ``seconds = fixed + per_level * levels`` (levels = max_disp / 4, the 1/4-resolution
 cost-volume depth) separates what the 2D parts cost (features, refinement) from what
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         session = learned._session(variant.path, variant.sha256)
         network, raw = best_of(lambda: learned.CadeNetwork._run(session, card.divisor, band_left, band_right),
                                args.repeat)
-        refinement, sharp = best_of(lambda: learned.refine_semiglobal(left, right, raw), args.repeat)
+        refinement, sharp = best_of(lambda: learned.refine_semiglobal(left, right, raw, span), args.repeat)
         validity, _ = best_of(lambda: fill_invalid_along_rows(sharp, visible_in_right_view(raw)), args.repeat)
         stage_rows.append((folder.name, megapixels, span, variant.max_disp, transform, network, refinement, validity))
         for other in card.variants:

@@ -20,6 +20,9 @@ from cade_cli import __version__
 METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade")
 """Registered matchers, listed here so that --help needs no heavy import (a test keeps
 this in step with :data:`cade_cli.matching.MATCHERS`)."""
+DEFAULT_METHOD = "cade"
+"""The default matcher, here so that --help needs no heavy import (a test keeps it equal
+to :data:`cade_cli.stereo.DEFAULT_METHOD`)."""
 
 EXIT_INPUT_ERROR = 1
 EXIT_USAGE_ERROR = 2
@@ -50,7 +53,14 @@ def _root(
 
 
 MethodOption = Annotated[
-    str, typer.Option("--method", "-m", help=f"Matcher: {', '.join(METHOD_NAMES)}.")
+    str,
+    typer.Option(
+        "--method",
+        "-m",
+        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), has the lowest error "
+        "of the four on the cross-spectral benchmark and is about 3x faster than census-sgm, the best "
+        "classical one (docs/results.md).",
+    ),
 ]
 MaxDispOption = Annotated[
     Optional[int],
@@ -64,7 +74,7 @@ PreprocessOption = Annotated[
     typer.Option(
         "--preprocess",
         help="'cade' (color agnostic transform on both bands), 'none', or 'auto': the matcher's more "
-        "accurate choice on cross-spectral pairs (census-sgm, zncc-sgm: none; sgbm: cade).",
+        "accurate choice on cross-spectral pairs (census-sgm, zncc-sgm: none; sgbm, cade: cade).",
     ),
 ]
 
@@ -78,7 +88,7 @@ def disparity(
     left: Annotated[Path, typer.Argument(help="Reference (left) image.", show_default=False)],
     right: Annotated[Path, typer.Argument(help="Other (right) image, possibly another band.", show_default=False)],
     output: Annotated[Path, typer.Option("--output", "-o", help="Disparity file: .pfm, .tif, .png (KITTI uint16) or .npy.")],
-    method: MethodOption = "census-sgm",
+    method: MethodOption = DEFAULT_METHOD,
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
     preprocess: PreprocessOption = "auto",
@@ -125,7 +135,7 @@ def register(
     disparity_file: Annotated[
         Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it.")
     ] = None,
-    method: MethodOption = "census-sgm",
+    method: MethodOption = DEFAULT_METHOD,
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
     preprocess: PreprocessOption = "auto",

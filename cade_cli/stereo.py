@@ -9,8 +9,9 @@ import numpy as np
 from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityResult, get_matcher
 
-DEFAULT_METHOD = "census-sgm"
-"""Most accurate classical matcher on the cross-spectral benchmark (docs/results.md)."""
+DEFAULT_METHOD = "cade"
+"""The CADE network: the lowest EPE of the registered matchers on every set and protocol
+of the cross-spectral benchmark (docs/results.md)."""
 
 DEFAULT_PREPROCESS = "auto"
 

@@ -42,6 +42,7 @@ def render_pair(
     background: tuple[float, float] = (6.0, 0.0),
     foreground: tuple[float, float] | None = None,
     margin: int = 4,
+    box: tuple[int, int, int, int] | None = None,
 ) -> SyntheticPair:
     """Render a stereo pair of a background plane and, optionally, a foreground rectangle.
 
@@ -52,6 +53,9 @@ def render_pair(
             nearer than the background (larger disparity); None for no foreground.
         margin: pixels this close to an occlusion, a depth edge or the left border
             (plus the largest disparity) are excluded from ``reliable``.
+        box: the foreground's rows and columns (top, bottom, first, last), bottom and last
+            excluded; None for the centred rectangle (the middle half of the rows and the
+            middle third of the columns).
     """
     height, width = shape
     padding = 64
@@ -61,7 +65,7 @@ def render_pair(
     columns = np.arange(width, dtype=np.float32)[None, :]
     bg_disparity = np.broadcast_to(background[0] + background[1] * rows, shape).astype(np.float32)
 
-    top, bottom, first, last = height // 4, 3 * height // 4, width // 3, 2 * width // 3
+    top, bottom, first, last = box or (height // 4, 3 * height // 4, width // 3, 2 * width // 3)
     fg_mask = np.zeros(shape, bool)
     fg_disparity = np.zeros(shape, np.float32)
     if foreground is not None:

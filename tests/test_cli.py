@@ -48,7 +48,7 @@ def test_disparity_writes_an_accurate_map_and_a_summary(pair_files, tmp_path, ca
     assert np.abs(estimate - pair.disparity)[pair.reliable].mean() < 0.5
     assert cv2.imread(str(vis)).shape == (72, 112, 3)
     assert len(stdout.strip().splitlines()) == 1
-    assert "112x72" in stdout and "valid" in stdout and "census-sgm+none" in stdout  # auto resolved
+    assert "112x72" in stdout and "valid" in stdout and "cade+cade" in stdout  # the default, auto resolved
 
 
 @pytest.mark.parametrize("suffix", [".tif", ".png", ".npy"])
@@ -228,3 +228,9 @@ def test_method_names_in_help_match_the_registry():
     from cade_cli.matching import MATCHERS
 
     assert tuple(MATCHERS) == cli.METHOD_NAMES
+
+
+def test_the_commands_default_to_the_library_default_method():
+    from cade_cli.stereo import DEFAULT_METHOD
+
+    assert cli.DEFAULT_METHOD == DEFAULT_METHOD

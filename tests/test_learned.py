@@ -204,7 +204,7 @@ def test_kernel_takes_raw_bands_and_output_is_dense(rng):
     assert result.valid.dtype == bool and result.valid.shape == pair.left.shape
 
 
-# ---- refinement: semi-global matching of the raw bands around the network's estimate
+# ---- refinement: semi-global matching of the raw bands, overruling the network where they agree
 
 REFINE_BANDS = {
     "same band": lambda band: band,
@@ -214,20 +214,48 @@ REFINE_BANDS = {
 
 
 @pytest.mark.parametrize("other_band", REFINE_BANDS.values(), ids=REFINE_BANDS.keys())
-@pytest.mark.parametrize("offset", [-9.0, 5.0, 13.0])
-def test_refinement_corrects_an_estimate_that_is_off_within_its_radius(rng, offset, other_band):
+@pytest.mark.parametrize("offset", [-9.0, 5.0, 13.0, 27.0])
+def test_refinement_corrects_an_estimate_that_is_off_within_the_agreement(rng, offset, other_band):
     pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
     estimate = (pair.disparity + offset).astype(np.float32)  # a network that is off by `offset`
-    assert abs(offset) < learned.REFINE_RADIUS
-    refined = learned.refine_semiglobal(pair.left, other_band(pair.right), estimate)
+    assert abs(offset) < learned.REFINE_AGREEMENT
+    refined = learned.refine_semiglobal(pair.left, other_band(pair.right), estimate, 48)
     error = np.abs(refined - pair.disparity)[pair.reliable]
     assert np.median(error) < 0.3 and (error < 1).mean() > 0.9
 
 
-def test_refinement_radius_must_suit_opencv(rng):
+def test_refinement_recovers_a_thin_structure_the_network_missed(rng):
+    """A 10-px bar 24 px in front of the background (2.5 px at the network's 1/4 resolution),
+    which the estimate (a network that blurred it away entirely) does not show."""
+    pair = render_pair(rng, (96, 192), background=(6.0, 0.0), foreground=(30.0, 0.0), box=(16, 80, 120, 130), margin=1)
+    bar = pair.reliable & (pair.disparity > 20)
+    assert bar.sum() > 100
+    estimate = np.full_like(pair.disparity, 6.0)
+    refined = learned.refine_semiglobal(pair.left, 0.1 + 0.6 * pair.right**1.8, estimate, 48)
+    assert np.median(np.abs(refined - pair.disparity)[bar]) < 0.5
+
+
+def test_refinement_keeps_the_network_beyond_the_agreement(rng):
+    pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
+    estimate = (pair.disparity + 1.5 * learned.REFINE_AGREEMENT).astype(np.float32)
+    refined = learned.refine_semiglobal(pair.left, pair.right, estimate, 80)
+    assert (refined == estimate)[pair.reliable].mean() > 0.95
+
+
+def test_refinement_leaves_unrelated_bands_to_the_network(rng):
+    """Bands that share no structure (the R and G planes of random colour textures) must
+    not overrule the network: SGBM's rejections keep its value."""
+    pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
+    unrelated = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0)).right
+    estimate = (pair.disparity + 3.0).astype(np.float32)
+    refined = learned.refine_semiglobal(pair.left, unrelated, estimate, 48)
+    assert (refined == estimate)[pair.reliable].mean() > 0.6  # about 0.8; 0.3 without the rejections
+
+
+def test_refinement_needs_a_span(rng):
     band = rng.random((16, 64)).astype(np.float32)
-    with pytest.raises(ValueError, match="multiple of 8"):
-        learned.refine_semiglobal(band, band, np.zeros_like(band), radius=12)
+    with pytest.raises(ValueError, match="span"):
+        learned.refine_semiglobal(band, band, np.zeros_like(band), 0)
 
 
 def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):

@@ -13,8 +13,9 @@ and wider ones). Around it this module:
   rescaling disparity;
 * pads to the divisor (replicating the border) and crops back;
 * refines the network's estimate at full resolution (:func:`refine_semiglobal`):
-  semi-global matching of the rank-transformed raw bands, searching only within
-  16 px of the network's disparity, where the network sees the match;
+  semi-global matching of the rank-transformed raw bands over the whole range, whose
+  confident matches within 32 px of the network's disparity replace it, where the
+  network sees the match;
 * splits tall images into overlapping horizontal strips, so memory stays bounded
   (disparity is horizontal: a strip holds everything its rows need);
 * marks as invalid the pixels the right view cannot see (a nearer surface hides them,
@@ -165,14 +166,16 @@ def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: 
     return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
 
 
-REFINE_RADIUS = 16
-"""Half-width (px, at full resolution) of the search around the network's disparity that
-:func:`refine_semiglobal` makes; a multiple of 8 (OpenCV searches multiples of 16)."""
+REFINE_AGREEMENT = 32
+"""Largest difference (px) between the network's disparity and the semi-global match that
+:func:`refine_semiglobal` still accepts; beyond it the network's value is kept."""
 REFINE_RANK_WINDOW = 7
 REFINE_BLOCK = 5
 REFINE_P1, REFINE_P2 = 8, 64
 """SGBM smoothness penalties per pixel of the block (OpenCV's usual 8 and 32 x block area,
-with a stiffer P2: the network already has the surface's shape, the search corrects it)."""
+with a stiffer P2)."""
+REFINE_UNIQUENESS = 10
+"""SGBM rejects a match whose runner-up (beyond its neighbours) costs less than 10 % more."""
 REFINE_SIGN_BLUR = 31
 """Side of the box blur applied to both bands before their correlation decides whether
 one is the other's contrast-inverted version."""
@@ -191,84 +194,83 @@ def correlation(left: np.ndarray, right: np.ndarray) -> float:
     return float(np.sum(left * right) / norm) if norm > 0 else 0.0
 
 
-def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, *,
-                      radius: int = REFINE_RADIUS) -> np.ndarray:
-    """Correct the network's disparity by semi-global matching of the raw bands around it.
+def contrast_inverted(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> bool:
+    """Whether ``right`` is, over the whole image, a contrast-inverted version of ``left``
+    along the matches ``disparity`` gives (negative correlation of the 31x31-blurred bands).
+
+    Judged on blurred bands, so the sign holds where ``disparity`` is many pixels off;
+    every ``REFINE_SIGN_STEP``-th row and column is enough after that blur."""
+    step = np.s_[::REFINE_SIGN_STEP, ::REFINE_SIGN_STEP]
+    height, width = left.shape
+    rows, columns = np.mgrid[0:height:REFINE_SIGN_STEP, 0:width:REFINE_SIGN_STEP].astype(np.float32)
+    blurred_left, blurred_right = (cv2.blur(band.astype(np.float32), (REFINE_SIGN_BLUR, REFINE_SIGN_BLUR))
+                                   for band in (left, right))
+    matched = cv2.remap(blurred_right, columns - np.rint(disparity[step]), rows,
+                        cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    return correlation(blurred_left[step], matched) < 0
+
+
+def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, span: int, *,
+                      agreement: float = REFINE_AGREEMENT) -> np.ndarray:
+    """Correct the network's disparity by semi-global matching of the raw bands.
 
     The network works at 1/4 resolution on color-agnostic bands: robust across bands, but
-    blurred at edges and in fine texture. This step matches the full-resolution bands
-    again, in the network's neighbourhood only:
+    blurred at edges, in fine texture and on thin structures (branches, cables), which it
+    can miss by tens of pixels. This step matches the full-resolution bands again, over
+    the whole range, and lets the result overrule the network where it is trustworthy:
 
     1. both bands become rank images (:func:`~cade_cli.matching.cost.rank_transform`,
        7x7): they depend only on the order of intensities, so a gain, offset or gamma
-       change between bands does not alter them, and fine texture is kept;
-    2. the right rank image is warped by the rounded network disparity ``b``, so a pixel
-       whose true disparity is ``b + r`` matches at residual ``r``; where the bands are
-       anti-correlated along those matches (blurred 31x31, over the whole image: a
-       filter pair that inverts contrast), the warped ranks are flipped (48 - rank).
-       An inversion confined to part of the scene is not flipped; there the ranks
-       disagree and the rejections of step 4 leave most of it to the network;
-    3. OpenCV's StereoSGBM (3-way mode, 5x5 blocks) searches ``r`` in
-       [-``radius``, ``radius``) on that pair, with sub-pixel output; its smoothness term
-       acts on the residual, i.e. it keeps the network's surface shape and corrects it;
-    4. ``b + r`` replaces the network's value where SGBM found an interior winner; at the
-       ends of the search (the truth may lie beyond), or where SGBM rejects the match
-       (a runner-up within 20 % of the best cost, or a speckle: a patch under 100 px
-       that differs by more than 2 px from its surroundings), the network's value is
-       kept. Where the bands are unrelated (e.g. the R and G planes of random colour
-       textures) the ranks disagree and these rejections leave the network in charge.
-
-    Warping by a per-pixel shift is exact where the network's disparity is locally
-    constant and an approximation across its steps, where the search then has to
-    absorb the difference.
+       change between bands does not alter them, and fine texture is kept; where the
+       bands are anti-correlated along the network's matches over the whole image (a
+       filter pair that inverts contrast, :func:`contrast_inverted`), the right ranks
+       are flipped (48 - rank). An inversion confined to part of the scene is not
+       flipped; there the ranks disagree and step 3 leaves most of it to the network;
+    2. OpenCV's StereoSGBM (3-way mode, 5x5 blocks) searches
+       disparities 0 .. ``span`` on that pair, with sub-pixel output;
+    3. its value replaces the network's where SGBM accepted the match and it lies within
+       ``agreement`` px of the network's; elsewhere the network's value is kept: SGBM
+       rejects a match whose runner-up is within 10 % of the best cost, a speckle (a
+       patch under 100 px that differs by more than 2 px from its surroundings), and a
+       match outside the right image is refused too. Where the bands are unrelated (e.g.
+       the R and G planes of random colour textures) the ranks disagree, and these
+       rejections and the agreement bound leave the network in charge.
 
     Args:
         left, right: (H, W) float32 raw bands (any units; only their order matters).
-        disparity: (H, W) float32 network disparity for ``left``, in pixels.
-        radius: search half-width in pixels, a positive multiple of 8.
+        disparity: (H, W) float32 network disparity for ``left``, in pixels, in [0, span].
+        span: largest disparity searched, px.
+        agreement: largest accepted difference from ``disparity``, px.
 
     Returns:
         (H, W) float32 refined disparity.
     """
-    if radius <= 0 or radius % 8:
-        raise ValueError(f"refinement radius must be a positive multiple of 8, got {radius}")
-    height, width = left.shape
-    base = np.rint(disparity).astype(np.float32)
-    columns = np.arange(width, dtype=np.float32)[None, :] - base
-    rows = np.broadcast_to(np.arange(height, dtype=np.float32)[:, None], (height, width)).copy()
+    if span < 1:
+        raise ValueError(f"refinement needs a disparity span of at least 1 px, got {span}")
+    width = left.shape[1]
     top = REFINE_RANK_WINDOW**2 - 1
     left_rank, right_rank = (rank_transform(band, window=REFINE_RANK_WINDOW) for band in (left, right))
-
-    def warp(image: np.ndarray, at=np.s_[:, :]) -> np.ndarray:
-        """``image`` at each left pixel's match (nearest), for the left pixels ``at`` selects."""
-        return cv2.remap(image, np.ascontiguousarray(columns[at]), np.ascontiguousarray(rows[at]),
-                         cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-
-    warped = warp(right_rank)
-    # Where one band is the other's negative (contrast inverted), so is its rank: flip it.
-    # Judged on blurred bands, so the sign holds where the network is many pixels off;
-    # every REFINE_SIGN_STEP-th row and column is enough after a 31x31 blur.
-    blurred_left, blurred_right = (cv2.blur(band.astype(np.float32), (REFINE_SIGN_BLUR, REFINE_SIGN_BLUR))
-                                   for band in (left, right))
-    step = np.s_[::REFINE_SIGN_STEP, ::REFINE_SIGN_STEP]
-    if correlation(blurred_left[step], warp(blurred_right, step)) < 0:
-        warped = np.uint8(top) - warped
+    if contrast_inverted(left, right, disparity):
+        right_rank = np.uint8(top) - right_rank
     # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
     scale = np.uint8(240 // top)
-    left_rank, warped = left_rank * scale, warped * scale
+    left_rank, right_rank = left_rank * scale, right_rank * scale
+    levels = -(-(span + 1) // 16) * 16  # OpenCV searches a multiple of 16 levels
     area = REFINE_BLOCK * REFINE_BLOCK
+    # disp12MaxDiff asks for OpenCV's left-right check, but it changed no score and no
+    # rejection count when tried off and at 0..2 px (models/README.md, session 10): no
+    # left-right check is claimed for this step.
     matcher = cv2.StereoSGBM_create(
-        minDisparity=-radius, numDisparities=2 * radius, blockSize=REFINE_BLOCK,
-        P1=REFINE_P1 * area, P2=REFINE_P2 * area, disp12MaxDiff=-1, uniquenessRatio=20,
-        speckleWindowSize=100, speckleRange=2, preFilterCap=15, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    # OpenCV leaves the first minDisparity + numDisparities columns unmatched (and some
-    # at the right for a negative minimum): pad, so that happens outside the image.
-    pad = 2 * radius
-    left_rank, warped = (cv2.copyMakeBorder(image, 0, 0, pad, pad, cv2.BORDER_REPLICATE)
-                         for image in (left_rank, warped))
-    residual = matcher.compute(left_rank, warped)[:, pad:pad + width].astype(np.float32) / np.float32(16)
-    interior = (residual > -radius) & (residual < radius - 1)  # rejects are -radius - 1
-    return np.where(interior, base + residual, disparity).astype(np.float32)
+        minDisparity=0, numDisparities=levels, blockSize=REFINE_BLOCK, P1=REFINE_P1 * area, P2=REFINE_P2 * area,
+        disp12MaxDiff=1, uniquenessRatio=REFINE_UNIQUENESS, speckleWindowSize=100, speckleRange=2,
+        preFilterCap=15, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    # OpenCV leaves the first ``levels`` columns unmatched: pad, so that happens outside the image.
+    left_rank, right_rank = (cv2.copyMakeBorder(image, 0, 0, levels, 0, cv2.BORDER_REPLICATE)
+                             for image in (left_rank, right_rank))
+    matched = matcher.compute(left_rank, right_rank)[:, levels:].astype(np.float32) / np.float32(16)
+    inside = (matched >= 0) & (matched <= np.arange(width, dtype=np.float32)[None, :])  # rejects are -1
+    accepted = inside & (np.abs(matched - disparity) <= agreement)
+    return np.where(accepted, matched, disparity).astype(np.float32)
 
 
 class CadeNetwork:
@@ -301,7 +303,7 @@ class CadeNetwork:
         # corrections would scatter it. Occluded pixels have nothing to match: not refined.
         valid = visible_in_right_view(disparity)
         if self.refine:
-            refined = refine_semiglobal(left, right, disparity - minimum) + minimum
+            refined = refine_semiglobal(left, right, disparity - minimum, disparity_range.count - 1) + minimum
             disparity = np.clip(np.where(valid, refined, disparity), minimum, disparity_range.maximum)
         return DisparityResult(fill_invalid_along_rows(disparity, valid), valid)
 
