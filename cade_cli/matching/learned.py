@@ -299,7 +299,7 @@ class CadeNetwork:
             network = cv2.resize(network, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
                 width / left_band.shape[1])
         disparity = np.clip(network + minimum, minimum, disparity_range.maximum)
-        # Visibility is judged on the network's surface: the refinement's small-scale
+        # Visibility is judged on the network's surface: the refinement's per-pixel
         # corrections would scatter it. Occluded pixels have nothing to match: not refined.
         valid = visible_in_right_view(disparity)
         if self.refine:
