@@ -252,6 +252,43 @@ def test_refinement_leaves_unrelated_bands_to_the_network(rng):
     assert (refined == estimate)[pair.reliable].mean() > 0.6  # about 0.8; 0.3 without the rejections
 
 
+def invert_columns(band: np.ndarray, first: int) -> np.ndarray:
+    """``band`` with its contrast inverted from column ``first`` on."""
+    return np.where(np.arange(band.shape[1])[None, :] >= first, 1.0 - band, band).astype(np.float32)
+
+
+@pytest.mark.parametrize("inverted", ["nowhere", "everywhere", "right half", "small patch"])
+def test_inverted_regions_find_where_contrast_is_reversed(rng, inverted):
+    pair = render_pair(rng, (96, 384), background=(8.3, 0.0))
+    other = 0.1 + 0.6 * pair.right**1.8
+    if inverted == "everywhere":
+        other = 1.0 - other
+    elif inverted == "right half":
+        other = invert_columns(other, 192)
+    elif inverted == "small patch":  # 3 % of the view: below the share that counts as a region
+        other[32:64, 176:208] = 1.0 - other[32:64, 176:208]
+    flipped = learned.inverted_regions(pair.left, other, pair.disparity)
+    assert flipped.shape == pair.left.shape
+    if inverted == "everywhere":
+        assert flipped.all()
+    elif inverted == "right half":  # matches land in the inverted half from column 192 + 8.3 on
+        assert not flipped[:, :150].any() and flipped[:, 250:].mean() > 0.95
+    else:
+        assert not flipped.any()
+
+
+def test_refinement_matches_across_a_regional_inversion(rng):
+    """Half of the right band is inverted (as vegetation is between red and NIR): the
+    flipped ranks let SGBM correct the estimate there too."""
+    pair = render_pair(rng, (96, 384), background=(8.3, 0.04), foreground=(19.6, 0.0))
+    other = invert_columns(0.1 + 0.6 * pair.right**1.8, 192)
+    estimate = (pair.disparity + 5.0).astype(np.float32)
+    refined = learned.refine_semiglobal(pair.left, other, estimate, 48)
+    error = np.abs(refined - pair.disparity)
+    for half in (np.s_[:, :180], np.s_[:, 220:]):
+        assert np.median(error[half][pair.reliable[half]]) < 0.3
+
+
 def test_refinement_needs_a_span(rng):
     band = rng.random((16, 64)).astype(np.float32)
     with pytest.raises(ValueError, match="span"):

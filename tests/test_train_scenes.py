@@ -13,7 +13,9 @@ from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
 from cade_cli.train.scenes import (
+    NO_MISALIGNMENT,
     NO_PHOTOMETRIC,
+    Misalignment,
     Photometric,
     TexturePool,
     _textured,
@@ -54,6 +56,58 @@ def test_warping_right_with_ground_truth_reproduces_left(seed):
     # The check has teeth: the same warp without the disparity does not reproduce it.
     unshifted = np.abs(scene.right - scene.left).max(axis=2)
     assert (unshifted[checked] < 0.05).mean() < 0.9
+
+
+def best_row_offset(scene, offsets: np.ndarray) -> tuple[float, np.ndarray]:
+    """The vertical offset o for which right(x - d, y - o) best reproduces left(x, y)."""
+    height, width = scene.disparity.shape
+    rows, columns = np.mgrid[0:height, 0:width].astype(np.float32)
+    checked = scene.nonoccluded & ~depth_edges(scene.disparity, radius=3)
+    checked[:3], checked[-3:] = False, False
+    errors = np.array([np.median(np.abs(cv2.remap(scene.right, columns - scene.disparity, rows - np.float32(o),
+                                                  cv2.INTER_LINEAR)
+                                        - scene.left).max(axis=2)[checked]) for o in offsets])
+    return float(offsets[np.argmin(errors)]), errors
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_misaligned_right_view_is_offset_rows_of_an_exact_pair(seed):
+    """Misalignment moves the right view's rows only: the left view and its disparity stay
+    exact, and warping with the disparity and the drawn row offset reproduces the left."""
+    args = dict(max_disp=48, textures=TexturePool(), photometric=NO_PHOTOMETRIC)
+    rectified = render_scene(np.random.default_rng(seed), 96, 160, **args)
+    misaligned = render_scene(np.random.default_rng(seed), 96, 160, **args,
+                              misalignment=Misalignment(share=1.0, offset=1.0, roll=0.0, zoom=0.0))
+    assert np.array_equal(rectified.left, misaligned.left)
+    assert np.array_equal(rectified.disparity, misaligned.disparity)
+    offsets = np.round(np.arange(-1.0, 1.0001, 0.05), 2)
+    assert best_row_offset(rectified, offsets)[0] == 0.0
+    offset, errors = best_row_offset(misaligned, offsets)
+    assert abs(offset) >= 0.3  # these seeds draw offsets of 0.35 .. 0.8 px
+    assert errors.min() < 0.01  # as exact as a rectified pair at its own offset ...
+    assert errors[offsets == 0.0][0] > 3 * errors.min()  # ... and clearly worse without it
+
+
+def test_misalignment_rows_follow_offset_roll_and_zoom():
+    y, x = np.mgrid[0:50, 0:80].astype(np.float32)
+    rows = Misalignment(share=1.0, offset=1.0, roll=0.01, zoom=0.01).rows(np.random.default_rng(0), x, y)
+    shift = rows - y
+    assert 0 < np.abs(shift).max() <= 1.0 + 0.01 * 40 + 0.01 * 25 + 1e-5
+    # An affine field: constant steps along columns and along rows.
+    assert np.allclose(np.diff(shift, axis=1), np.diff(shift, axis=1)[0, 0], atol=1e-5)
+    assert np.allclose(np.diff(shift, axis=0), np.diff(shift, axis=0)[0, 0], atol=1e-5)
+
+
+def test_misalignment_off_draws_nothing_and_changes_nothing():
+    """share=0 (the default) leaves the random stream, so earlier runs' scenes, unchanged."""
+    y, x = np.mgrid[0:8, 0:8].astype(np.float32)
+    rng, untouched = np.random.default_rng(5), np.random.default_rng(5)
+    assert Misalignment(share=0.0, offset=5.0).rows(rng, x, y) is y
+    assert rng.random() == untouched.random()
+    a = render_scene(np.random.default_rng(2), 64, 96, max_disp=32, textures=TexturePool())
+    b = render_scene(np.random.default_rng(2), 64, 96, max_disp=32, textures=TexturePool(),
+                     misalignment=NO_MISALIGNMENT)
+    assert np.array_equal(a.right, b.right)
 
 
 def test_occluded_pixels_are_not_seen_by_the_right_view():

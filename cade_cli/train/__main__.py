@@ -40,6 +40,9 @@ def fit(
     = "zeros",
     entry_kernel: Annotated[int, typer.Option(min=1, help="First 3D kernel size: 1 (cade-v4) or 3 (v1 ... v3).")]
     = 1,
+    misaligned: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs whose right view is "
+                                              "vertically misaligned by up to 1 px (cade-v5: 0.5; before: 0).")]
+    = 0.0,
 ) -> None:
     """Train (or resume) a run."""
     from cade_cli.train.fit import TrainConfig, train
@@ -49,7 +52,7 @@ def fit(
                          width=width, max_disp=max_disp, lr=lr, seed=seed, device=device, threads=threads,
                          workers=workers, validate_every=validate_every, stop_after=stop_after,
                          init=str(init) if init else None, warmup=warmup, padding=padding,
-                         entry_kernel=entry_kernel)
+                         entry_kernel=entry_kernel, misaligned=misaligned)
     train(config, resume=resume)
 
 

@@ -20,7 +20,7 @@ import torch.nn.functional as F
 
 from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count
 from cade_cli.train.pairs import cade_pair
-from cade_cli.train.scenes import TexturePool, render_scene
+from cade_cli.train.scenes import Misalignment, TexturePool, render_scene
 
 
 @dataclass
@@ -51,6 +51,10 @@ class TrainConfig:
     """CadeNet's 2D padding mode; cade-v1 … v3 were trained with "replicate"."""
     entry_kernel: int = 1
     """CadeNet's first 3D kernel size; cade-v1 … v3 were trained with 3."""
+    misaligned: float = 0.0
+    """Share of training pairs whose right view is vertically misaligned
+    (:class:`~cade_cli.train.scenes.Misalignment`: up to 1 px, plus a slight roll and zoom);
+    cade-v1 … v4 saw perfectly rectified pairs only. Validation pairs stay rectified."""
 
 
 class GeneratedBatches(torch.utils.data.Dataset):
@@ -68,13 +72,17 @@ class GeneratedBatches(torch.utils.data.Dataset):
         if self.pool is None:
             self.pool = TexturePool([Path(folder) for folder in config.textures])
         rng = np.random.default_rng([config.seed, step])
-        return collate([generated_pair(rng, self.pool, config.height, config.width, config.max_disp)
+        return collate([generated_pair(rng, self.pool, config.height, config.width, config.max_disp,
+                                       misaligned=config.misaligned)
                         for _ in range(config.batch)])
 
 
-def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, max_disp: int):
-    """One CADE pair of a freshly rendered scene; disparities below ``max_disp``."""
-    scene = render_scene(rng, height, width, max_disp=max_disp - 1, textures=pool)
+def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, max_disp: int, *,
+                   misaligned: float = 0.0):
+    """One CADE pair of a freshly rendered scene; disparities below ``max_disp``; a share
+    ``misaligned`` of the pairs has a vertically misaligned right view."""
+    scene = render_scene(rng, height, width, max_disp=max_disp - 1, textures=pool,
+                         misalignment=Misalignment(share=misaligned))
     return cade_pair(scene, rng)
 
 

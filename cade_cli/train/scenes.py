@@ -58,6 +58,39 @@ class Photometric:
     and flat regions the CADE transform then sees a few grey levels, not smooth noise."""
 
 
+@dataclass(frozen=True)
+class Misalignment:
+    """Residual vertical misalignment of the right view, as an imperfectly rectified rig
+    (two cameras behind different filters, calibrated once) leaves it.
+
+    A misaligned pair's right view shows, at pixel (x, y), the scene row
+    y + offset + roll * (x - W/2) + zoom * (y - H/2) of the left view's coordinates, with
+    each term drawn uniformly from [-bound, bound]. Only rows move: the ground-truth
+    (horizontal) disparity of the left view stays exact, and the right view is rendered
+    at those rows, not resampled, so it is as sharp as the left.
+    """
+
+    share: float = 0.0
+    """Probability that a pair is misaligned at all (0: every pair perfectly rectified)."""
+    offset: float = 1.0
+    """Largest vertical offset, px."""
+    roll: float = 0.002
+    """Largest change of the offset per column (a roll of about 0.1 degrees)."""
+    zoom: float = 0.002
+    """Largest change of the offset per row (focal lengths 0.2 % apart)."""
+
+    def rows(self, rng: np.random.Generator, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Left-view rows the right view shows at (x, y); ``y`` itself when not misaligned."""
+        if self.share <= 0 or rng.random() >= self.share:  # no draw when off: v4's scenes unchanged
+            return y
+        height, width = y.shape
+        offset, roll, zoom = rng.uniform(-1.0, 1.0, size=3) * (self.offset, self.roll, self.zoom)
+        return (y + offset + roll * (x - width / 2) + zoom * (y - height / 2)).astype(np.float32)
+
+
+NO_MISALIGNMENT = Misalignment()
+
+
 NO_PHOTOMETRIC = Photometric((1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0), 0.0)
 
 
@@ -291,6 +324,7 @@ def render_scene(
     textures: TexturePool,
     objects: tuple[int, int] = (3, 15),
     photometric: Photometric = Photometric(),
+    misalignment: Misalignment = NO_MISALIGNMENT,
 ) -> StereoScene:
     """Render one stereo pair with disparity in [0, max_disp).
 
@@ -300,6 +334,9 @@ def render_scene(
         textures: where layer textures come from.
         objects: inclusive-exclusive range for the number of objects before the background.
         photometric: ranges of the per-view gain (per channel), gamma, blur and noise.
+        misalignment: residual vertical misalignment of the right view (none by default).
+            A misaligned pair's ``nonoccluded`` compares layers across that offset, so
+            it may be off by the offset (about a pixel) along occlusion boundaries.
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
@@ -313,7 +350,8 @@ def render_scene(
                             random_shape(rng, height, width), *_textured(rng, textures, height, width)))
 
     left, disparity, left_index = _composite(layers, [x] * len(layers), y)
-    right, _, right_index = _composite(layers, [layer.source_column(x, y) for layer in layers], y)
+    right_rows = misalignment.rows(rng, x, y)
+    right, _, right_index = _composite(layers, [layer.source_column(x, right_rows) for layer in layers], right_rows)
 
     right_x = np.rint(x - disparity).astype(np.int64)
     inside = (right_x >= 0) & (right_x < width)
