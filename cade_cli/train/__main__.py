@@ -41,7 +41,8 @@ def fit(
     entry_kernel: Annotated[int, typer.Option(min=1, help="First 3D kernel size: 1 (cade-v4) or 3 (v1 ... v3).")]
     = 1,
     misaligned: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs whose right view is "
-                                              "vertically misaligned by up to 1 px (cade-v5: 0.5; before: 0).")]
+                                              "vertically misaligned by up to 1 px (the cade-v5 experiment: 0.5; "
+                                              "the shipped cade-v4: 0).")]
     = 0.0,
 ) -> None:
     """Train (or resume) a run."""
