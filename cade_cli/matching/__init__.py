@@ -33,7 +33,8 @@ MATCHERS: dict[str, Matcher] = {
         # itself: its refinement matches the raw bands); memory is bounded by strips and
         # a pyramid, not by the range.
         Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v4), "
-                "refined by SGM on rank-transformed raw bands within 16 px of its estimate",
+                "refined by SGM of the rank-transformed raw bands over the whole range, kept within 32 px of "
+                "its estimate",
                 CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, transforms_itself=True,
                 volume_bytes=0),
     )

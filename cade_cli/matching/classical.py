@@ -77,7 +77,7 @@ class OpenCvSgbm:
     full_dp: bool = True
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
-        count = -(-disparity_range.count // 16) * 16
+        count = opencv_sgbm_levels(disparity_range.count)
         area = self.block_size * self.block_size
         matcher = cv2.StereoSGBM_create(
             minDisparity=disparity_range.minimum,
@@ -95,6 +95,12 @@ class OpenCvSgbm:
         raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
         valid = (raw >= disparity_range.minimum) & (raw <= disparity_range.maximum)
         return DisparityResult(fill_invalid_along_rows(raw, valid), valid)
+
+
+def opencv_sgbm_levels(count: int) -> int:
+    """The disparity count OpenCV's StereoSGBM searches for ``count`` levels: the next
+    multiple of 16 (its requirement)."""
+    return -(-count // 16) * 16
 
 
 def to_uint8(band: np.ndarray) -> np.ndarray:

@@ -41,6 +41,7 @@ import numpy as np
 from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.classical import opencv_sgbm_levels
 from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.disparity import fill_invalid_along_rows, visible_in_right_view
 from cade_cli.spectral import color_agnostic
@@ -307,7 +308,7 @@ def refine_semiglobal(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
     scale = np.uint8(240 // top)
     left_rank, right_rank = left_rank * scale, right_rank * scale
-    levels = -(-(span + 1) // 16) * 16  # OpenCV searches a multiple of 16 levels
+    levels = opencv_sgbm_levels(span + 1)
     area = REFINE_BLOCK * REFINE_BLOCK
     # disp12MaxDiff asks for OpenCV's left-right check, but it changed no score and no
     # rejection count when tried off and at 0..2 px (models/README.md, session 10): no
