@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 SAMPLE := samples/middlebury2005-art
 OUT := out
 
-.PHONY: demo test bench-speed bench-memory train clean
+.PHONY: demo test bench-speed bench-memory train gpu-data clean
 
 $(BIN)/cade: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -45,6 +45,14 @@ train: $(BIN)/cade
 	$(BIN)/python -m cade_cli.train fit --out $(RUN) --init $(INIT) --textures ../shared/data/textures \
 		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 4 --device cpu --threads 2 --workers 1
 	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v4.onnx
+
+# The GPU recipe's carried data (docs/gpu-recipe.md): the real training scenes and three
+# texture sets, copied where the device run can carry them (.gpu-data/, git-ignored).
+gpu-data:
+	rm -rf .gpu-data && mkdir -p .gpu-data/textures
+	cp -r ../shared/data/train-real .gpu-data/
+	cp -r ../shared/data/textures/CBSD68 ../shared/data/textures/Kodak24 ../shared/data/textures/skimage_cc0 .gpu-data/textures/
+	du -sh .gpu-data
 
 clean:
 	rm -rf $(OUT) .pytest_cache

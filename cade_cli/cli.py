@@ -17,9 +17,12 @@ import typer
 
 from cade_cli import __version__
 
-METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade")
+METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade", "cade-network")
 """Registered matchers, listed here so that --help needs no heavy import (a test keeps
 this in step with :data:`cade_cli.matching.MATCHERS`)."""
+BENCHMARK_METHODS = METHOD_NAMES[:4]
+"""What ``cade benchmark`` compares by default: the four matchers (cade-network is cade's
+first stage, there to analyse the network; name it with --methods)."""
 DEFAULT_METHOD = "cade"
 """The default matcher, here so that --help needs no heavy import (a test keeps it equal
 to :data:`cade_cli.stereo.DEFAULT_METHOD`)."""
@@ -69,6 +72,12 @@ MaxDispOption = Annotated[
 MinDispOption = Annotated[
     int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
 ]
+ModelOption = Annotated[
+    Optional[str],
+    typer.Option("--model", help="Network of the learned methods: the path of a model card (.json, its ONNX files "
+                 "beside it, as `python -m cade_cli.train export` writes them) or a card name in the model folder "
+                 "($CADE_MODEL_DIR, default the shipped models/). Default: the shipped cade-v4."),
+]
 PreprocessOption = Annotated[
     str,
     typer.Option(
@@ -92,38 +101,61 @@ def disparity(
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
     preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
     vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
     left_band: Annotated[Optional[int], _band_option("left")] = None,
     right_band: Annotated[Optional[int], _band_option("right")] = None,
+    fill: Annotated[
+        str, typer.Option("--fill", help="Pixels the matcher rejected: 'row' (filled from the background side "
+                          "along the row; dense output) or 'none' (written as the format's invalid marker).")
+    ] = "row",
+    validity: Annotated[
+        Optional[Path], typer.Option("--validity", help="Also write the validity mask: PNG (255 = valid, 0 = rejected) "
+                                     "or TIFF (uint8 1/0).")
+    ] = None,
 ) -> None:
-    """Dense disparity of LEFT against RIGHT, written to OUTPUT."""
-    from cade_cli.disparity_io import DISPARITY_SUFFIXES, write_disparity, write_visualization
+    """Disparity of LEFT against RIGHT, written to OUTPUT."""
+    from cade_cli.disparity_io import (
+        DISPARITY_SUFFIXES,
+        VALIDITY_SUFFIXES,
+        write_disparity,
+        write_validity,
+        write_visualization,
+    )
     from cade_cli.errors import CadeError
-    from cade_cli.matching import get_matcher
+    from cade_cli.matching import densify, get_matcher
     from cade_cli.stereo import estimate_disparity
 
+    if fill not in ("row", "none"):
+        raise CadeError(f"unknown --fill {fill!r}; choose row or none")
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
-    if vis is not None:
-        _check_output(vis, suffixes=(".png",), inputs=(left, right))
-        if vis.resolve() == output.resolve():
-            raise CadeError(f"--vis {vis} is the same file as --output; give the visualisation another name")
+    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES)):
+        if side_output is not None:
+            _check_output(side_output, suffixes=suffixes, inputs=(left, right))
+            if side_output.resolve() == output.resolve():
+                raise CadeError(f"{option} {side_output} is the same file as --output; give it another name")
+    if vis is not None and validity is not None and vis.resolve() == validity.resolve():
+        raise CadeError(f"--vis and --validity both name {vis}; give them different names")
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     max_disp = _resolve_max_disp(max_disp, left_image.shape[1])
     result = estimate_disparity(
-        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess
+        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+        model=model,
     )
     seconds = time.perf_counter() - started
     preprocess = get_matcher(method).resolve_preprocess(preprocess)
-    stored = result.disparity.copy()
-    write_disparity(output, stored)
+    dense = densify(result.disparity, result.valid)
+    write_disparity(output, dense if fill == "row" else result.disparity)
     if vis is not None:
-        write_visualization(vis, _masked(result.disparity, result.valid))
-    height, width = stored.shape
+        write_visualization(vis, result.disparity)
+    if validity is not None:
+        write_validity(validity, result.valid)
+    height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
-        f"disparity {float(stored.min()):.2f}..{float(stored.max()):.2f} px, "
-        f"valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s"
+        f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
+        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
     )
 
 
@@ -133,12 +165,18 @@ def register(
     reference: Annotated[Path, typer.Argument(help="Reference band (left view).", show_default=False)],
     output: Annotated[Path, typer.Option("--output", "-o", help="Float32 TIFF: reference, registered, validity bands.")],
     disparity_file: Annotated[
-        Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it.")
+        Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it "
+                                     "(its invalid markers -- inf, NaN, 0 in PNG -- are not trusted).")
+    ] = None,
+    validity_file: Annotated[
+        Optional[Path], typer.Option("--validity", help="With --disparity: the validity mask `cade disparity "
+                                     "--validity` wrote; only its valid pixels are trusted.")
     ] = None,
     method: MethodOption = DEFAULT_METHOD,
     max_disp: MaxDispOption = None,
     min_disp: MinDispOption = 0,
     preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
     fill: Annotated[
         str, typer.Option("--fill", help="Occluded pixels: 'row' (background along the row) or 'none' (NaN).")
     ] = "row",
@@ -152,20 +190,28 @@ def register(
     from cade_cli.registration import register as register_band
     from cade_cli.registration_io import write_registration
 
-    inputs = tuple(p for p in (moving, reference, disparity_file) if p is not None)
+    from cade_cli.errors import CadeError
+
+    inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
     _check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
+    if validity_file is not None and disparity_file is None:
+        raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
     reference_image, moving_image = _read_pair(
         reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
     )
     started = time.perf_counter()
     if disparity_file is not None:
-        result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file), fill=fill)
-        source = f"disparity from {disparity_file}"
+        from cade_cli.disparity_io import read_validity
+
+        trusted = read_validity(validity_file) if validity_file is not None else None
+        result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file),
+                               disparity_valid=trusted, fill=fill)
+        source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
     else:
         max_disp = _resolve_max_disp(max_disp, reference_image.shape[1])
         result = register_band(
             moving_image, reference_image, method=method, max_disp=max_disp, min_disp=min_disp,
-            preprocess=preprocess, fill=fill,
+            preprocess=preprocess, fill=fill, model=model,
         )
         from cade_cli.matching import get_matcher
 
@@ -180,7 +226,7 @@ def register(
 def benchmark(
     dataset: Annotated[str, typer.Option("--dataset", "-d", help="middlebury05, middlebury06, middlebury14, flyingthings3d, kitti2012, kitti2015 or folder.")],
     data_dir: Annotated[Path, typer.Option("--data-dir", help="Folder holding the dataset in its official layout.")],
-    methods: Annotated[str, typer.Option("--methods", help="Comma-separated matchers.")] = ",".join(METHOD_NAMES),
+    methods: Annotated[str, typer.Option("--methods", help="Comma-separated matchers.")] = ",".join(BENCHMARK_METHODS),
     protocol: Annotated[str, typer.Option("--protocol", help="Comma-separated: cs (six band pairs), rgb (median of R/G/B), native (grey pair).")] = "cs,rgb",
     preprocess: Annotated[str, typer.Option("--preprocess", help="Comma-separated: none, cade, auto.")] = "none,cade",
     scenes: Annotated[Optional[str], typer.Option("--scenes", help="Comma-separated scene names (default: all).")] = None,
@@ -188,6 +234,7 @@ def benchmark(
     json_file: Annotated[Optional[Path], typer.Option("--json", help="Write every number as JSON.")] = None,
     report: Annotated[Optional[Path], typer.Option("--report", help="Write a Markdown report.")] = None,
     save_dir: Annotated[Optional[Path], typer.Option("--save-dir", help="Write each disparity (PFM) and error map (PNG) here.")] = None,
+    model: ModelOption = None,
 ) -> None:
     """Score matchers on a dataset with the paper's protocols (CS, RGB) and print a Table-1-style summary."""
     import shlex
@@ -197,9 +244,10 @@ def benchmark(
     from rich.table import Table
 
     from cade_cli.atomic import atomic_output
-    from cade_cli.benchmark import run_benchmark
-    from cade_cli.benchmark_report import markdown, pixel_sets, table, title
+    from cade_cli.evaluation.loop import run_benchmark
+    from cade_cli.evaluation.report import markdown, pixel_sets, table, title
     from cade_cli.errors import CadeError
+    from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
     for path, suffix in ((json_file, ".json"), (report, ".md")):
         if path is not None:
@@ -212,13 +260,17 @@ def benchmark(
     with Progress(*columns, console=console, transient=True) as progress:
         bar = progress.add_task(f"benchmark {dataset}", total=None)
 
-        def advance(unit) -> None:
-            progress.update(bar, advance=1, description=f"{unit.scene} {unit.protocol} {unit.method}+{unit.preprocess}")
+        def advance(scene: str, records: list) -> None:
+            progress.update(bar, advance=1, description=f"{dataset} {scene} done")
 
+        learned = [name for name in split(methods) if name in LEARNED_METHODS]
+        if model is not None and not learned:
+            raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
+        matchers = {**MATCHERS, **{name: get_matcher(name, model=model) for name in learned}}
         run = run_benchmark(
             dataset=dataset, data_dir=data_dir, methods=split(methods), protocols=split(protocol),
             preprocess=split(preprocess), scenes=split(scenes) if scenes else None, jobs=jobs,
-            save_dir=save_dir, on_unit_done=advance,
+            save_dir=save_dir, on_scene_done=advance, matchers=matchers,
             on_start=lambda total: progress.update(bar, total=total),
         )
     out = Console()
@@ -250,7 +302,7 @@ app.add_typer(datasets_app, name="datasets")
 @datasets_app.command("list")
 def datasets_list() -> None:
     """Each dataset: what a download holds, its approximate size and where it comes from."""
-    from cade_cli.download import SOURCES
+    from cade_cli.data import SOURCES
 
     width = max(len(name) for name in SOURCES) + 2
     for source in SOURCES.values():
@@ -275,7 +327,7 @@ def datasets_download(
 
     from rich.console import Console
 
-    from cade_cli.download import download_dataset, download_progress, get_source
+    from cade_cli.data import download_dataset, download_progress, get_source
 
     resolution = resolution.upper() if resolution else None
     get_source(name).archives(resolution)  # refuse a bad request before any output
@@ -333,12 +385,6 @@ def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, 
     for source in inputs:
         if source.exists() and path.exists() and path.resolve() == source.resolve():
             raise CadeError(f"output {path} is also an input; choose another output name")
-
-
-def _masked(disparity, valid):
-    import numpy as np
-
-    return np.where(valid, disparity, np.float32(np.nan))
 
 
 def _note(message: str) -> None:

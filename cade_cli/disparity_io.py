@@ -7,6 +7,9 @@ marking invalid pixels. On disk each format uses its own marker (STYLE.md habit 
 - ``.tif`` / ``.tiff``: float32, NaN = invalid.
 - ``.png``: uint16 ``round(d * 256)``, 0 = invalid (KITTI); only 0 <= d < 256.
 - ``.npy``: float32, NaN = invalid.
+
+A validity mask (:func:`write_validity`) is a separate file: PNG (uint8, 255 = valid,
+0 = rejected) or TIFF (uint8, 1 / 0).
 """
 
 from __future__ import annotations
@@ -184,6 +187,49 @@ def write_visualization(
         raise CadeError(f"visualization {path} must be a .png file; change its extension to .png")
     coloured = colorize_disparity(disparity, vmin=vmin, vmax=vmax)
     _write_atomically(path, lambda tmp: _write_png(tmp, coloured))
+
+
+VALIDITY_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff")
+"""Extensions :func:`write_validity` and :func:`read_validity` handle (any case)."""
+
+
+def write_validity(path: Path, valid: np.ndarray) -> None:
+    """Write an (H, W) bool validity mask, all-or-nothing: PNG 255 / 0, TIFF uint8 1 / 0.
+
+    Raises:
+        CadeError: unsupported extension, not 2-D, or an OS error while writing.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    mask = np.asarray(valid, bool)
+    if mask.ndim != 2:
+        raise CadeError(f"a validity mask must have shape (H, W), got shape {mask.shape}")
+    if suffix == ".png":
+        _write_atomically(path, lambda tmp: _write_png(tmp, mask.astype(np.uint8) * np.uint8(255)))
+    elif suffix in (".tif", ".tiff"):
+        _write_atomically(path, lambda tmp: tifffile.imwrite(tmp, mask.astype(np.uint8), photometric="minisblack"))
+    else:
+        raise CadeError(f"cannot write validity to {path}: unsupported extension {path.suffix or '(none)'}; "
+                        f"use one of {', '.join(VALIDITY_SUFFIXES)}")
+
+
+def read_validity(path: Path) -> np.ndarray:
+    """Read a mask written by :func:`write_validity`: (H, W) bool, True where non-zero.
+
+    Raises:
+        CadeError: missing or unreadable file, unsupported extension, not one band.
+    """
+    path = check_input_file(Path(path), suffixes=VALIDITY_SUFFIXES)
+    if path.suffix.lower() == ".png":
+        mask = decode_with_cv2(path)
+    else:
+        try:
+            mask = tifffile.imread(path)
+        except Exception as exc:  # tifffile raises many types on corrupt files; none may escape
+            raise CadeError(f"cannot read {path} as TIFF: {one_line_message(exc)}; re-export it") from exc
+    if mask.ndim != 2:
+        raise CadeError(f"{path} has shape {mask.shape}; a validity mask is one band (255/1 = valid, 0 = rejected)")
+    return mask != 0
 
 
 def _disparity_suffix(path: Path) -> str:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching.disparity import fill_invalid_along_rows
+from cade_cli.matching.disparity import densify
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, estimate_disparity
 
 Fill = Literal["none", "row"]
@@ -61,11 +61,13 @@ def register(
     reference: np.ndarray,
     *,
     disparity: np.ndarray | None = None,
+    disparity_valid: np.ndarray | None = None,
     method: str = DEFAULT_METHOD,
     max_disp: int | None = None,
     min_disp: int = 0,
     preprocess: str = DEFAULT_PREPROCESS,
     fill: Fill = "row",
+    model: str | None = None,
 ) -> Registration:
     """Warp the moving (right) band into the reference (left) view.
 
@@ -74,9 +76,12 @@ def register(
         disparity: (H, W) reference-view disparity in px, NaN where unknown; when None
             it is estimated with ``method`` / ``max_disp`` / ``min_disp`` / ``preprocess``
             (see :func:`cade_cli.estimate_disparity`).
+        disparity_valid: (H, W) bool validity of a given ``disparity`` (e.g. the mask
+            ``cade disparity --validity`` wrote); None trusts every finite pixel.
         fill: what pixels without a trusted correspondence get: ``"none"`` leaves NaN;
             ``"row"`` samples the moving band with the disparity filled from the
             background side along the row (occluded areas show the background).
+        model: another network for the learned methods (:func:`cade_cli.estimate_disparity`).
 
     Returns:
         :class:`Registration`.
@@ -95,9 +100,10 @@ def register(
         )
     if disparity is None:
         result = estimate_disparity(
-            reference, moving, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess
+            reference, moving, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+            model=model,
         )
-        dense, trusted = result.disparity, result.valid
+        disparity, trusted = result.disparity, result.valid
     else:
         disparity = np.asarray(disparity, np.float32)
         if disparity.shape != reference.shape:
@@ -106,9 +112,14 @@ def register(
                 f"{reference.shape[1]}x{reference.shape[0]}"
             )
         trusted = np.isfinite(disparity)
+        if disparity_valid is not None:
+            if np.shape(disparity_valid) != disparity.shape:
+                raise CadeError(f"validity mask {np.shape(disparity_valid)[::-1]} and disparity map "
+                                f"{disparity.shape[::-1]} differ in size; use the mask written with that map")
+            trusted &= np.asarray(disparity_valid, bool)
         if not trusted.any():
             raise CadeError("the disparity map has no valid pixel")
-        dense = fill_invalid_along_rows(disparity, trusted)
+    dense = densify(disparity, trusted)
     registered, inside = warp_to_reference(moving, dense)
     valid = trusted & inside
     if fill == "none":

@@ -35,6 +35,7 @@ def estimate_disparity(
     max_disp: int | None = None,
     min_disp: int = 0,
     preprocess: str = DEFAULT_PREPROCESS,
+    model: str | None = None,
 ) -> DisparityResult:
     """Dense disparity of the left (reference) band against the right band.
 
@@ -48,13 +49,16 @@ def estimate_disparity(
             pre-registered to a plane.
         preprocess: ``"cade"`` (color agnostic transform on both bands), ``"none"``, or
             ``"auto"``: the matcher's more accurate choice on cross-spectral pairs
-            (:attr:`~cade_cli.matching.Matcher.best_preprocess`).
+            (the first of :attr:`~cade_cli.matching.Matcher.preprocessing`).
+        model: for the learned methods, another network than the shipped one: a model
+            card's path or a card name (:func:`cade_cli.matching.get_matcher`).
 
     Returns:
-        :class:`~cade_cli.matching.DisparityResult`: dense (H, W) float32 disparity in
-        pixels plus an (H, W) bool validity mask.
+        :class:`~cade_cli.matching.DisparityResult`: unfilled (H, W) float32 disparity
+        in pixels (NaN where invalid) plus its (H, W) bool validity;
+        :func:`~cade_cli.matching.densify` fills it.
     """
-    matcher = get_matcher(method)
+    matcher = get_matcher(method, model=model)
     left, right = np.asarray(left), np.asarray(right)
     if left.ndim != 2:
         raise CadeError(f"left image must be one band of shape (H, W), got shape {left.shape}; pick a band")

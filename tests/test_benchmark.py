@@ -1,7 +1,9 @@
-"""The benchmark loop end to end on a tiny dataset we render ourselves."""
+"""The benchmark loop end to end on a tiny dataset we render ourselves: one decode per
+scene, task subsets, degraded right bands, timing, deterministic parallel runs."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,10 +12,12 @@ import numpy as np
 import pytest
 
 from cade_cli import cli
-from cade_cli.benchmark import run_benchmark
-from cade_cli.benchmark_report import markdown
+from cade_cli.data import DATASETS
 from cade_cli.errors import CadeError
-from cade_cli.matching import MATCHERS, DisparityResult, Matcher
+from cade_cli.evaluation.loop import run_benchmark
+from cade_cli.evaluation.report import markdown
+from cade_cli.evaluation.timing import Timing
+from cade_cli.matching import DisparityResult
 from synthetic import render_pair
 
 DISPARITY = 5.0
@@ -37,18 +41,42 @@ def folder_dataset(tmp_path, rng) -> Path:
     return root
 
 
-@pytest.fixture
-def oracle(monkeypatch):
-    """A matcher that returns the known disparity: every score must be exactly 0."""
-    def kernel(left, right, disparity_range):
+class Oracle:
+    """A matcher that returns the known disparity (all valid) and remembers its calls."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, left, right, *, max_disp, min_disp=0, preprocess="auto"):
+        self.calls.append((left.copy(), right.copy(), max_disp, preprocess))
         return DisparityResult(np.full(left.shape, DISPARITY, np.float32), np.ones(left.shape, bool))
 
-    monkeypatch.setitem(MATCHERS, "oracle", Matcher("oracle", "returns the ground truth", kernel))
-    return "oracle"
+
+@pytest.fixture
+def oracle() -> dict:
+    return {"oracle": Oracle()}
+
+
+@pytest.fixture
+def counted_loads(monkeypatch) -> list[str]:
+    """Registers dataset "counted": the folder reader, logging each scene it decodes."""
+    loads: list[str] = []
+    folder = DATASETS["folder"]
+
+    def list_scenes(root, resolution):
+        def counted(name, load):
+            loads.append(name)
+            return load()
+
+        return {name: (lambda name=name, load=load: counted(name, load))
+                for name, load in folder.list_scenes(root, resolution).items()}
+
+    monkeypatch.setitem(DATASETS, "counted", dataclasses.replace(folder, name="counted", list_scenes=list_scenes))
+    return loads
 
 
 def test_a_matcher_returning_the_ground_truth_scores_zero(folder_dataset, oracle):
-    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=[oracle],
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
                         protocols=["cs", "rgb", "native"], preprocess=["none"])
     assert len(run.records) == 2 * (6 + 1 + 1)  # scenes x (CS tasks + RGB median + native)
     for record in run.records:
@@ -73,8 +101,9 @@ def test_jobs_do_not_change_the_results(folder_dataset):
     kwargs = dict(dataset="folder", data_dir=folder_dataset, methods=["sgbm"], protocols=["cs", "rgb"],
                   preprocess=["cade"])
     serial, parallel = run_benchmark(jobs=1, **kwargs), run_benchmark(jobs=2, **kwargs)
-    strip = lambda run: [(r.scene, r.task, r.scores) for r in run.records]  # noqa: E731
+    strip = lambda run: [(r.scene, r.protocol, r.task, r.scores) for r in run.records]  # noqa: E731
     assert strip(serial) == strip(parallel)
+    assert [r.scene for r in parallel.records] == ["first"] * 7 + ["second"] * 7  # scene order
 
 
 def test_save_dir_writes_disparities_and_error_maps(folder_dataset, tmp_path):
@@ -117,8 +146,98 @@ def test_cli_bad_dataset_is_one_line(tmp_path, capsys):
 
 
 def test_markdown_names_resolution_and_pixel_set(folder_dataset, oracle):
-    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=[oracle], protocols=["cs"],
-                        preprocess=["none"])
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                        protocols=["cs"], preprocess=["none"])
     text = markdown(run, command="cade benchmark ...")
     assert "all pixels with ground truth" in text and "non-occluded" not in text  # folder has no masks
     assert "| oracle + none | 0.00 | 0.0 | 0.0 |" in text
+
+
+def test_each_scene_is_decoded_once_for_all_protocols_methods_and_preprocessing(folder_dataset, counted_loads,
+                                                                                 oracle):
+    run = run_benchmark(dataset="counted", data_dir=folder_dataset, methods=["oracle", "sgbm"],
+                        matchers={**oracle, "sgbm": __import__("cade_cli.matching").matching.MATCHERS["sgbm"]},
+                        protocols=["cs", "rgb"], preprocess=["none", "cade"])
+    assert counted_loads == ["first", "second"]
+    assert len(run.records) == 2 * 2 * 2 * (6 + 1)  # scenes x methods x preprocess x (CS + RGB median)
+    first = [(r.protocol, r.method, r.preprocess, r.task) for r in run.records if r.scene == "first"]
+    assert first[:7] == [("cs", "oracle", "none", t) for t in ("R>G", "R>B", "G>R", "G>B", "B>R", "B>G")] + [
+        ("cs", "oracle", "cade", "R>G")]
+
+
+def test_task_subset_runs_only_those_tasks(folder_dataset, oracle):
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                        protocols=["cs"], preprocess=["none"], tasks=["G>B", "R>B"])
+    assert [(r.scene, r.task) for r in run.records] == [
+        ("first", "R>B"), ("first", "G>B"), ("second", "R>B"), ("second", "G>B")]
+    assert len(oracle["oracle"].calls) == 4
+    with pytest.raises(CadeError, match="unknown task 'R>R'"):
+        run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                      protocols=["cs"], preprocess=["none"], tasks=["R>R"])
+    with pytest.raises(CadeError, match="protocol rgb"):
+        run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                      protocols=["cs", "rgb"], preprocess=["none"], tasks=["R>B"])
+
+
+def test_degradations_change_only_the_right_band(folder_dataset, oracle):
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, scenes=["first"], methods=["oracle"],
+                        matchers=oracle, protocols=["cs"], preprocess=["none"], tasks=["R>B"],
+                        degradations=["none", "invert", "noise-6"])
+    (plain_left, plain_right, *_), (left, right, *_), (noisy_left, noisy_right, *_) = oracle["oracle"].calls
+    np.testing.assert_array_equal(left, plain_left)
+    np.testing.assert_array_equal(noisy_left, plain_left)
+    np.testing.assert_allclose(right, 1 - plain_right, atol=1e-6)
+    assert 4 / 255 < np.std(noisy_right - plain_right) < 8 / 255
+    assert [r.degradation for r in run.records] == ["none", "invert", "noise-6"]
+    rows = run.summary(by=("degradation", "method"))
+    assert [(row["degradation"], row["method"]) for row in rows] == [
+        ("none", "oracle"), ("invert", "oracle"), ("noise-6", "oracle")]
+    records = json.loads(run.to_json())["records"]
+    assert "degradation" not in records[0] and records[1]["degradation"] == "invert"
+    with pytest.raises(CadeError, match="unknown degradation 'fog'"):
+        run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                      protocols=["cs"], preprocess=["none"], degradations=["fog"])
+
+
+def test_timing_option_warms_up_and_repeats(folder_dataset, oracle):
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, scenes=["first"], methods=["oracle"],
+                        matchers=oracle, protocols=["native"], preprocess=["none"],
+                        timing=Timing(warmup=1, repeat=3))
+    assert len(oracle["oracle"].calls) == 4 and len(run.records) == 1
+    assert run.config["timing"] == {"warmup": 1, "repeat": 3, "threads": None}
+    assert run.scene_shapes == {"first": (40, 64, 16)}
+
+
+def test_search_range_is_the_scenes_inclusive_max_disp(folder_dataset, oracle):
+    run_benchmark(dataset="folder", data_dir=folder_dataset, scenes=["first"], methods=["oracle"],
+                  matchers=oracle, protocols=["native"], preprocess=["cade"])
+    ((_, _, max_disp, preprocess),) = oracle["oracle"].calls
+    assert (max_disp, preprocess) == (16, "cade")  # max_disp_from_gt: 5 px -> 16
+
+
+def test_preprocess_a_matcher_does_not_take_is_skipped(folder_dataset):
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, scenes=["first"], methods=["sgbm", "cade"],
+                        protocols=["native"], preprocess=["none", "cade"])
+    assert [(r.method, r.preprocess) for r in run.records] == [("sgbm", "none"), ("sgbm", "cade"), ("cade", "cade")]
+
+
+def test_compare_records_reports_each_changed_score(folder_dataset, oracle, tmp_path):
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "compare_records.py"
+    spec = importlib.util.spec_from_file_location("compare_records", script)
+    compare = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(compare)
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle"], matchers=oracle,
+                        protocols=["cs"], preprocess=["none"])
+    old, new = tmp_path / "old.json", tmp_path / "new.json"
+    old.write_text(run.to_json())
+    data = json.loads(run.to_json())
+    data["records"][3]["scores"]["epe_all"] = 0.25
+    data["records"][3]["seconds"] = 99.0  # timing is not compared
+    new.write_text(json.dumps(data))
+    assert compare.main([str(old), str(old)]) == 0
+    assert compare.main([str(old), str(new)]) == 1
+    lines = [line for line in compare.differences(*[compare.records_by_key(p)[1] for p in (old, new)],
+                                                  data["config"], 0.0)]
+    assert lines == ["folder / first / cs / oracle / none / G>B / none: epe_all 0.0 -> 0.25 (+0.25)"]

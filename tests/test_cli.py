@@ -234,3 +234,61 @@ def test_the_commands_default_to_the_library_default_method():
     from cade_cli.stereo import DEFAULT_METHOD
 
     assert cli.DEFAULT_METHOD == DEFAULT_METHOD
+
+
+def test_unfilled_output_and_validity_mark_what_the_matcher_rejected(pair_files, tmp_path, capsys):
+    """--fill none writes the format's invalid marker exactly where --validity says 0, and
+    the filled map agrees with the unfilled one wherever the matcher kept its estimate."""
+    pair, left, right = pair_files
+    dense, unfilled, mask = tmp_path / "dense.pfm", tmp_path / "unfilled.pfm", tmp_path / "valid.png"
+    args = [left, right, "--max-disp", 20, "--method", "census-sgm"]
+    assert run_cade(["disparity", *args, "-o", dense], capsys)[0] == 0
+    code, stdout, stderr = run_cade(["disparity", *args, "-o", unfilled, "--fill", "none", "--validity", mask], capsys)
+    assert code == 0, stderr
+    valid = cv2.imread(str(mask), cv2.IMREAD_UNCHANGED) == 255
+    sparse = read_disparity(unfilled)
+    assert 0 < (~valid).sum() < valid.size // 4  # the left border and occlusions, not more
+    assert np.array_equal(np.isfinite(sparse), valid)
+    assert np.array_equal(sparse[valid], read_disparity(dense)[valid])
+    assert np.isfinite(read_disparity(dense)).all()
+
+
+def test_register_trusts_only_the_valid_pixels_of_a_given_map(pair_files, tmp_path, capsys):
+    pair, left, right = pair_files
+    disparity, mask, out = tmp_path / "d.pfm", tmp_path / "valid.tif", tmp_path / "reg.tif"
+    assert run_cade(["disparity", left, right, "-o", disparity, "--max-disp", 20, "--validity", mask], capsys)[0] == 0
+    code, stdout, stderr = run_cade(["register", right, left, "-o", out, "--disparity", disparity,
+                                     "--validity", mask], capsys)
+    assert code == 0, stderr
+    registered_valid = tifffile.imread(out)[2] > 0
+    written_valid = tifffile.imread(mask) > 0
+    assert not (registered_valid & ~written_valid).any() and (~written_valid).any()
+    code, _, stderr = run_cade(["register", right, left, "-o", tmp_path / "r2.tif", "--validity", mask], capsys)
+    assert code != 0 and "--validity needs --disparity" in stderr
+
+
+def test_model_option_runs_another_exported_network(pair_files, tmp_path, capsys):
+    """--model takes a card's path (a copy of the shipped card and files in another folder:
+    same map) and refuses a missing card and the classical methods in one line."""
+    import shutil
+
+    from cade_cli.model_card import card_path, read_card
+
+    pair, left, right = pair_files
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    for variant in read_card().variants:
+        shutil.copy(variant.path, folder)
+    shutil.copy(card_path(), folder / "my-model.json")
+    shipped, mine = tmp_path / "a.pfm", tmp_path / "b.pfm"
+    assert run_cade(["disparity", left, right, "-o", shipped, "--max-disp", 20], capsys)[0] == 0
+    code, _, stderr = run_cade(["disparity", left, right, "-o", mine, "--max-disp", 20,
+                                "--model", folder / "my-model.json"], capsys)
+    assert code == 0, stderr
+    assert np.array_equal(read_disparity(shipped), read_disparity(mine))
+    code, _, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "c.pfm", "--max-disp", 20, "--model", tmp_path / "no.json"],
+                               capsys)
+    assert code != 0 and "no.json" in stderr and len(stderr.strip().splitlines()) == 1
+    code, _, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "c.pfm", "--method", "sgbm",
+                                "--model", folder / "my-model.json"], capsys)
+    assert code != 0 and "has no network" in stderr and not (tmp_path / "c.pfm").exists()

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cade_cli.datasets import DATASETS, Scene, get_dataset, max_disp_from_gt, nonoccluded_mask, read_calib
+from cade_cli.data import DATASETS, Scene, get_dataset, max_disp_from_gt, nonoccluded_mask, read_calib
 from cade_cli.errors import CadeError
 
 H, W = 12, 18
@@ -66,8 +66,8 @@ def test_get_dataset_unknown_name_lists_choices():
 
 
 def test_registry_holds_every_reader():
-    assert set(DATASETS) == {"middlebury05", "middlebury06", "middlebury14", "flyingthings3d", "kitti2015",
-                             "kitti2012", "folder"}
+    assert set(DATASETS) == {"middlebury05", "middlebury06", "middlebury14", "middeval3", "flyingthings3d",
+                             "kitti2015", "kitti2012", "folder"}
 
 
 # --- Middlebury 2005 / 2006 ---------------------------------------------------------------

@@ -22,10 +22,9 @@ from urllib.parse import urlsplit
 import pytest
 
 from cade_cli import cli
-from cade_cli.datasets import DATASETS, get_dataset
-from cade_cli.download import (
+from cade_cli.data import (
     BASE_URL_ENV, DOWNLOADS_FOLDER, MIDDLEBURY14_TRAINING, SOURCES, Archive, DatasetSource, Expected,
-    download_dataset, mirror_url,
+    download_dataset, get_dataset, mirror_url,
 )
 from cade_cli.errors import CadeError
 
@@ -154,20 +153,6 @@ def single_line(error: pytest.ExceptionInfo) -> str:
 
 # --- registry -----------------------------------------------------------------------------
 
-def test_every_source_lands_in_a_folder_its_reader_searches():
-    for name, source in SOURCES.items():
-        assert name in DATASETS and source.name == name
-        assert source.folder in DATASETS[name].subfolders, name
-        if source.refusal is not None:
-            continue
-        for resolution in source.resolutions or (None,):
-            archives = source.archives(resolution)
-            assert len({a.filename for a in archives}) == len(archives)
-            for archive in archives:
-                assert urlsplit(archive.url).netloc in ("vision.middlebury.edu", "s3.eu-central-1.amazonaws.com")
-                assert archive.url.startswith("https://") and archive.expected
-
-
 def test_official_urls():
     urls = {a.url for a in SOURCES["middlebury14"].archives("H")}
     assert urls == {"https://vision.middlebury.edu/stereo/submit3/zip/MiddEval3-data-H.zip",
@@ -251,7 +236,7 @@ def test_kitti2015_bundle_lands_where_the_reader_finds_it(server, tmp_path):
 def test_progress_gets_one_task_per_file_named_after_it(server, tmp_path):
     from rich.console import Console
 
-    from cade_cli.download import download_progress
+    from cade_cli.data import download_progress
 
     root, base, _ = server
     payload = serve_middlebury05(root, ("Art",))["Art"]
@@ -407,7 +392,7 @@ def test_tar_archives_are_checked_and_unpacked_the_same_way(server, tmp_path, mo
     evil = Archive("https://example.org/sets/evil.tar.gz", "evil.tar.gz", (Expected("x"),))
     serve(root, good.url, tar_bytes({"set/left/a.png": b"a", "set/left/b.png": b"b"}))
     serve(root, evil.url, tar_bytes({"../escaped.png": b"e"}))
-    source = DatasetSource("folder", "test", "https://example.org", good.url, "folder", {"": "tiny"},
+    source = DatasetSource("folder", "folder", "test", "https://example.org", good.url, {"": "tiny"},
                            build=lambda resolution, scenes: (good,))
     monkeypatch.setitem(SOURCES, "folder", source)
     download_dataset("folder", tmp_path, base_url=base)

@@ -11,29 +11,37 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from cade_cli import model_card
 from cade_cli.errors import CadeError
-from cade_cli.matching import MATCHERS, learned
+from cade_cli.matching import MATCHERS, densify, network
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.learned import ModelCard, pyramid_factor, shift_right_view, strips
-from cade_cli.spectral import color_agnostic
+from cade_cli.matching.learned import LearnedPipeline
+from cade_cli.matching.network import choose_variant, pyramid_factor, shift_right_view, strips
+from cade_cli.matching.refinement import RankSgbmRefinement, correlation, inverted_regions
+from cade_cli.model_card import ModelCard, ModelVariant, read_card
 from synthetic import render_pair
 
 CADE = MATCHERS["cade"]
+REFINE = RankSgbmRefinement()
+
+
+def dense(result) -> np.ndarray:
+    return densify(result.disparity, result.valid)
 
 
 def test_shipped_model_matches_its_card():
-    card = ModelCard.load()
+    card = read_card()
     assert len(card.variants) >= 2
     for variant in card.variants:
-        assert variant.path.is_file() and variant.max_disp % card.divisor == 0
-        learned._session(variant.path, variant.sha256)  # verifies the sha256
+        assert variant.path.is_file() and variant.levels % card.divisor == 0
+        network.onnx_session(variant.path, variant.sha256)  # verifies the sha256
 
 
 def test_sessions_do_not_busy_wait_after_a_run():
     """Each run hands the cores to OpenCV's refinement; spinning onnxruntime threads would hold them."""
-    variant = ModelCard.load().variants[0]
-    options = learned._session(variant.path, variant.sha256).get_session_options()
-    assert options.get_session_config_entry(learned.ALLOW_SPINNING) == "0"
+    variant = read_card().variants[0]
+    options = network.onnx_session(variant.path, variant.sha256).get_session_options()
+    assert options.get_session_config_entry(network.ALLOW_SPINNING) == "0"
 
 
 def test_the_matcher_makes_no_blas_call(rng, monkeypatch):
@@ -47,7 +55,7 @@ def test_the_matcher_makes_no_blas_call(rng, monkeypatch):
         monkeypatch.setattr(np, name, refuse)
     pair = render_pair(rng, (96, 160), background=(9.3, 0.0))
     result = CADE(pair.left, 1.0 - pair.right, max_disp=32)  # inverted contrast: the check's correlation runs
-    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
+    assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
 
 
 @pytest.mark.parametrize("shape", [(7, 9), (40, 3)])
@@ -55,13 +63,13 @@ def test_correlation_is_pearsons(rng, shape):
     left, right = rng.random(shape, dtype=np.float32), rng.random(shape, dtype=np.float32)
     right += 0.5 * left
     expected = np.corrcoef(left.ravel().astype(np.float64), right.ravel().astype(np.float64))[0, 1]
-    assert learned.correlation(left, right) == pytest.approx(expected, rel=1e-9)
-    assert learned.correlation(left, -right) == pytest.approx(-expected, rel=1e-9)
-    assert learned.correlation(left, np.full(shape, 0.3, np.float32)) == 0.0
+    assert correlation(left, right) == pytest.approx(expected, rel=1e-9)
+    assert correlation(left, -right) == pytest.approx(-expected, rel=1e-9)
+    assert correlation(left, np.full(shape, 0.3, np.float32)) == 0.0
 
 
 def test_a_damaged_model_is_refused(tmp_path: Path, monkeypatch):
-    card = ModelCard.load()
+    card = read_card()
     for variant in card.variants:
         shutil.copy(variant.path, tmp_path / variant.path.name)
     narrowest = tmp_path / card.variants[0].path.name
@@ -69,38 +77,38 @@ def test_a_damaged_model_is_refused(tmp_path: Path, monkeypatch):
         stream.seek(-10, 2)
         stream.write(b"0123456789")
     shutil.copy(model_dir_card(), tmp_path)
-    monkeypatch.setenv(learned.MODEL_DIR_ENV, str(tmp_path))
+    monkeypatch.setenv(model_card.MODEL_DIR_ENV, str(tmp_path))
     band = np.random.default_rng(0).random((32, 48)).astype(np.float32)
     with pytest.raises(CadeError, match="sha256"):
         CADE(band, band, max_disp=8)
 
 
 def model_dir_card() -> Path:
-    return learned.model_dir() / f"{learned.MODEL_NAME}.json"
+    return model_card.card_path()
 
 
 def test_variant_choice_prefers_full_resolution_then_the_narrowest_search():
-    card = ModelCard([learned.ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 96, 192)], 8)
-    margin = learned.RANGE_MARGIN
-    chosen = {span: (variant.max_disp, factor) for span in (10, 88, 89, 120, 121, 184, 185, 248, 249, 600)
-              for variant, factor in [card.variant_for(span)]}
+    card = ModelCard("m", tuple(ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 96, 192)), 8)
+    margin = network.RANGE_MARGIN
+    chosen = {span: (variant.levels, factor) for span in (10, 88, 89, 120, 121, 184, 185, 248, 249, 600)
+              for variant, factor in [choose_variant(card, span)]}
     assert margin == 8 and chosen == {10: (96, 1), 88: (96, 1), 89: (128, 1), 120: (128, 1), 121: (192, 1),
                                       184: (192, 1), 185: (256, 1), 248: (256, 1), 249: (192, 2), 600: (192, 4)}
 
 
 def test_a_missing_card_names_the_environment_variable(tmp_path: Path, monkeypatch):
-    monkeypatch.setenv(learned.MODEL_DIR_ENV, str(tmp_path))
+    monkeypatch.setenv(model_card.MODEL_DIR_ENV, str(tmp_path))
     band = np.zeros((32, 48), np.float32)
-    with pytest.raises(CadeError, match=learned.MODEL_DIR_ENV):
+    with pytest.raises(CadeError, match=model_card.MODEL_DIR_ENV):
         CADE(band, band, max_disp=8)
-    (tmp_path / f"{learned.MODEL_NAME}.json").write_text(json.dumps({"file": "x.onnx"}))
+    model_card.card_path().write_text(json.dumps({"format": model_card.CARD_FORMAT, "file": "x.onnx"}))
     with pytest.raises(CadeError, match="malformed"):
         CADE(band, band, max_disp=8)
 
 
 def test_raw_bands_are_refused():
     band = np.zeros((32, 48), np.float32)
-    with pytest.raises(CadeError, match="color-agnostic"):
+    with pytest.raises(CadeError, match="cade"):
         CADE(band, band, max_disp=8, preprocess="none")
 
 
@@ -135,7 +143,7 @@ def test_recovers_rendered_disparity_across_bands(rng, scene):
     pair = render_pair(rng, (96, 160), **scene)
     other_band = 1.0 - (0.1 + 0.6 * pair.right**1.8)  # another filter: gamma, gain, inverted contrast
     result = CADE(pair.left, other_band, max_disp=32)
-    error = np.abs(result.disparity - pair.disparity)[pair.reliable]
+    error = np.abs(dense(result) - pair.disparity)[pair.reliable]
     assert error.mean() < 1.0
     assert result.valid[pair.reliable].mean() > 0.8
 
@@ -144,7 +152,7 @@ def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
     pair = render_pair(rng, (96, 160), background=(6.0, 0.0), foreground=(21.0, 0.0))
     result = CADE(pair.left, pair.right, max_disp=32)
     assert pair.occluded.sum() > 100
-    assert np.median(np.abs(result.disparity - pair.disparity)[pair.occluded]) < 1.0  # background side
+    assert np.median(np.abs(dense(result) - pair.disparity)[pair.occluded]) < 1.0  # background side
     assert result.valid[pair.reliable].mean() > 0.95
     # invalid: the left border (matches leave the right view) and around the occlusion
     # beside the foreground (rows 24..71, left edge at x = 53), hardly anywhere else
@@ -156,52 +164,52 @@ def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
 def test_negative_range_by_pre_shifting(rng):
     pair = render_pair(rng, (96, 160), background=(-11.6, 0.0))
     result = CADE(pair.left, pair.right, min_disp=-24, max_disp=8)
-    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
-    assert result.disparity.min() >= -24 and result.disparity.max() <= 8
+    assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
+    assert np.nanmin(result.disparity) >= -24 and np.nanmax(result.disparity) <= 8
 
 
 def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
-    card = ModelCard.load()
-    narrow, wide = card.variants[-2].max_disp, card.variants[-1].max_disp
+    card = read_card()
+    narrow, wide = card.variants[-2].levels, card.variants[-1].levels
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))
     chosen = []
-    choose = ModelCard.variant_for
 
-    def recording(self, span):
-        chosen.append(choose(self, span))
+    def recording(card, span):
+        chosen.append(choose_variant(card, span))
         return chosen[-1]
 
-    monkeypatch.setattr(ModelCard, "variant_for", recording)
-    result = CADE(pair.left, pair.right, max_disp=wide - learned.RANGE_MARGIN)
-    assert [(variant.max_disp, factor) for variant, factor in chosen] == [(wide, 1)]
-    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 1.0
+    monkeypatch.setattr(network, "choose_variant", recording)
+    result = CADE(pair.left, pair.right, max_disp=wide - network.RANGE_MARGIN)
+    assert [(variant.levels, factor) for variant, factor in chosen] == [(wide, 1)]
+    assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
 
 
 def test_range_beyond_the_network_runs_on_a_pyramid_level(rng):
-    widest = ModelCard.load().variants[-1].max_disp
+    widest = read_card().variants[-1].levels
     pair = render_pair(rng, (128, 2 * widest + 96), background=(widest + 21.0, 0.0))
     result = CADE(pair.left, pair.right, max_disp=widest + 40)
-    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 2.0
+    assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 2.0
 
 
 def test_strips_give_the_same_map_as_one_pass(rng, monkeypatch):
     pair = render_pair(rng, (200, 160), background=(7.0, 0.02), foreground=(15.0, 0.0))
     whole = CADE(pair.left, pair.right, max_disp=24)
-    monkeypatch.setattr(learned, "STRIP_PIXELS", 160 * 140)
-    assert len(learned.strips(200, 160, max_pixels=learned.STRIP_PIXELS)) > 1
+    monkeypatch.setattr(network, "STRIP_PIXELS", 160 * 140)
+    assert len(network.strips(200, 160, max_pixels=network.STRIP_PIXELS)) > 1
     split = CADE(pair.left, pair.right, max_disp=24)
-    close = np.abs(split.disparity - whole.disparity) < 0.25
+    close = np.abs(dense(split) - dense(whole)) < 0.25
     assert close[pair.reliable].mean() > 0.98
 
 
-def test_kernel_takes_raw_bands_and_output_is_dense(rng):
+def test_kernel_takes_raw_bands_and_output_is_unfilled(rng):
     # The matcher hands the kernel the raw bands (it transforms them itself), so the
     # refinement can match them; --preprocess cade is the only mode it accepts.
-    assert CADE.transforms_itself and not CADE.accepts_raw
+    assert CADE.preprocessing == ("cade",)
     pair = render_pair(rng, (64, 96), background=(5.0, 0.0))
-    result = learned.CadeNetwork()(pair.left, pair.right, DisparityRange(0, 16))
-    assert result.disparity.dtype == np.float32 and np.isfinite(result.disparity).all()
-    assert result.valid.dtype == bool and result.valid.shape == pair.left.shape
+    result = LearnedPipeline()(pair.left, pair.right, DisparityRange(0, 16))
+    assert result.disparity.dtype == np.float32 and result.valid.dtype == bool
+    assert result.valid.shape == pair.left.shape and not result.valid.all()  # the left border leaves the view
+    assert np.array_equal(np.isnan(result.disparity), ~result.valid)
 
 
 # ---- refinement: semi-global matching of the raw bands, overruling the network where they agree
@@ -218,8 +226,8 @@ REFINE_BANDS = {
 def test_refinement_corrects_an_estimate_that_is_off_within_the_agreement(rng, offset, other_band):
     pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
     estimate = (pair.disparity + offset).astype(np.float32)  # a network that is off by `offset`
-    assert abs(offset) < learned.REFINE_AGREEMENT
-    refined = learned.refine_semiglobal(pair.left, other_band(pair.right), estimate, 48)
+    assert abs(offset) < REFINE.agreement
+    refined = REFINE(pair.left, other_band(pair.right), estimate, DisparityRange(0, 48))
     error = np.abs(refined - pair.disparity)[pair.reliable]
     assert np.median(error) < 0.3 and (error < 1).mean() > 0.9
 
@@ -231,14 +239,14 @@ def test_refinement_recovers_a_thin_structure_the_network_missed(rng):
     bar = pair.reliable & (pair.disparity > 20)
     assert bar.sum() > 100
     estimate = np.full_like(pair.disparity, 6.0)
-    refined = learned.refine_semiglobal(pair.left, 0.1 + 0.6 * pair.right**1.8, estimate, 48)
+    refined = REFINE(pair.left, 0.1 + 0.6 * pair.right**1.8, estimate, DisparityRange(0, 48))
     assert np.median(np.abs(refined - pair.disparity)[bar]) < 0.5
 
 
 def test_refinement_keeps_the_network_beyond_the_agreement(rng):
     pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
-    estimate = (pair.disparity + 1.5 * learned.REFINE_AGREEMENT).astype(np.float32)
-    refined = learned.refine_semiglobal(pair.left, pair.right, estimate, 80)
+    estimate = (pair.disparity + 1.5 * REFINE.agreement).astype(np.float32)
+    refined = REFINE(pair.left, pair.right, estimate, DisparityRange(0, 80))
     assert (refined == estimate)[pair.reliable].mean() > 0.95
 
 
@@ -248,7 +256,7 @@ def test_refinement_leaves_unrelated_bands_to_the_network(rng):
     pair = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0))
     unrelated = render_pair(rng, (96, 192), background=(8.3, 0.04), foreground=(19.6, 0.0)).right
     estimate = (pair.disparity + 3.0).astype(np.float32)
-    refined = learned.refine_semiglobal(pair.left, unrelated, estimate, 48)
+    refined = REFINE(pair.left, unrelated, estimate, DisparityRange(0, 48))
     assert (refined == estimate)[pair.reliable].mean() > 0.6  # about 0.8; 0.3 without the rejections
 
 
@@ -267,7 +275,7 @@ def test_inverted_regions_find_where_contrast_is_reversed(rng, inverted):
         other = invert_columns(other, 192)
     elif inverted == "small patch":  # 3 % of the view: below the share that counts as a region
         other[32:64, 176:208] = 1.0 - other[32:64, 176:208]
-    flipped = learned.inverted_regions(pair.left, other, pair.disparity)
+    flipped = inverted_regions(pair.left, other, pair.disparity)
     assert flipped.shape == pair.left.shape
     if inverted == "everywhere":
         assert flipped.all()
@@ -283,16 +291,18 @@ def test_refinement_matches_across_a_regional_inversion(rng):
     pair = render_pair(rng, (96, 384), background=(8.3, 0.04), foreground=(19.6, 0.0))
     other = invert_columns(0.1 + 0.6 * pair.right**1.8, 192)
     estimate = (pair.disparity + 5.0).astype(np.float32)
-    refined = learned.refine_semiglobal(pair.left, other, estimate, 48)
+    refined = REFINE(pair.left, other, estimate, DisparityRange(0, 48))
     error = np.abs(refined - pair.disparity)
     for half in (np.s_[:, :180], np.s_[:, 220:]):
         assert np.median(error[half][pair.reliable[half]]) < 0.3
 
 
-def test_refinement_needs_a_span(rng):
+def test_a_single_disparity_leaves_nothing_to_refine(rng):
     band = rng.random((16, 64)).astype(np.float32)
-    with pytest.raises(ValueError, match="span"):
-        learned.refine_semiglobal(band, band, np.zeros_like(band), 0)
+    estimate = np.full_like(band, 20.0)
+    assert np.array_equal(REFINE(band, band, estimate, DisparityRange(20, 20)), estimate)
+    result = CADE(band, band, min_disp=20, max_disp=20)  # the classical matchers accept it too
+    assert np.all(result.disparity[result.valid] == 20)
 
 
 def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):
@@ -300,7 +310,8 @@ def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):
     other = 0.1 + 0.6 * pair.right**1.8
     errors = {}
     for refine in (False, True):
-        result = learned.CadeNetwork(refine=refine)(pair.left, other, DisparityRange(0, 32))
-        errors[refine] = np.abs(result.disparity - pair.disparity)[pair.reliable]
+        pipeline = LearnedPipeline(refinement=REFINE if refine else None)
+        result = pipeline(pair.left, other, DisparityRange(0, 32))
+        errors[refine] = np.abs(dense(result) - pair.disparity)[pair.reliable]
     assert (errors[True] < 0.5).mean() > (errors[False] < 0.5).mean() + 0.05
     assert errors[True].mean() <= errors[False].mean()

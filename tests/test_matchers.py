@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.matching import MATCHERS, get_matcher
+from cade_cli.matching import LEARNED_METHODS, MATCHERS, densify, get_matcher
 from synthetic import render_pair
 
 SCENES = {
@@ -21,13 +21,12 @@ def search_range(disparity: np.ndarray) -> tuple[int, int]:
 
 
 # Every matcher with every preprocessing it accepts (the CADE network takes CADE bands only).
-MATCHER_PREPROCESS = [(name, preprocess) for name, matcher in MATCHERS.items() for preprocess in ("none", "cade")
-                      if preprocess == "cade" or matcher.accepts_raw]
+MATCHER_PREPROCESS = [(name, preprocess) for name, matcher in MATCHERS.items() for preprocess in matcher.preprocessing]
 
 
 # The network's sub-pixel precision is coarser than a parabola fit on an SGM cost
 # (models/README.md), so it is held to 1 px mean error here, the others to 0.5 px.
-MEAN_ERROR_BOUND = {"cade": 1.0}
+MEAN_ERROR_BOUND = {"cade": 1.0, "cade-network": 1.0}
 
 
 @pytest.mark.parametrize("scene", SCENES)
@@ -37,8 +36,8 @@ def test_recovers_rendered_disparity(rng, name, preprocess, scene):
     low, high = search_range(pair.disparity)
     result = MATCHERS[name](pair.left, pair.right, min_disp=low, max_disp=high, preprocess=preprocess)
     assert result.disparity.shape == pair.left.shape and result.disparity.dtype == np.float32
-    assert np.isfinite(result.disparity).all()  # dense
-    error = np.abs(result.disparity - pair.disparity)[pair.reliable]
+    assert np.array_equal(np.isnan(result.disparity), ~result.valid)  # unfilled: NaN exactly where invalid
+    error = np.abs(densify(result.disparity, result.valid) - pair.disparity)[pair.reliable]
     assert error.mean() < MEAN_ERROR_BOUND.get(name, 0.5)
     assert result.valid[pair.reliable].mean() > 0.9
 
@@ -50,16 +49,16 @@ def test_cross_band_pair_with_cade(rng, name):
     other_band = 0.1 + 0.4 * pair.right**2.2
     low, high = search_range(pair.disparity)
     result = MATCHERS[name](pair.left, other_band, min_disp=low, max_disp=high, preprocess="cade")
-    assert np.abs(result.disparity - pair.disparity)[pair.reliable].mean() < 0.5
+    assert np.abs(densify(result.disparity, result.valid) - pair.disparity)[pair.reliable].mean() < 0.5
 
 
-@pytest.mark.parametrize("name", [name for name in MATCHERS if name != "cade"])
+@pytest.mark.parametrize("name", [name for name in MATCHERS if name not in LEARNED_METHODS])
 def test_identical_images_give_zero_disparity(rng, name):
     # The integer winner is exactly 0 everywhere; the parabola may move it by < 0.5 px
     # where the neighbouring costs are asymmetric, as they are on random texture.
     band = rng.random((40, 60)).astype(np.float32)
     result = MATCHERS[name](band, band, min_disp=-5, max_disp=5)
-    assert np.array_equal(np.rint(result.disparity), np.zeros((40, 60), np.float32))
+    assert np.array_equal(np.rint(densify(result.disparity, result.valid)), np.zeros((40, 60), np.float32))
     assert result.valid[:, 16:-5].all()  # OpenCV rejects x < min_disp + 16 (its rounded range)
 
 
@@ -67,7 +66,8 @@ def test_network_on_identical_images_stays_near_zero(rng):
     # Pixel-scale white noise is unlike anything the network was trained on (textures
     # there are at least a few pixels across), so it is held to a looser standard.
     band = rng.random((40, 60)).astype(np.float32)
-    error = np.abs(MATCHERS["cade"](band, band, min_disp=-5, max_disp=5).disparity)
+    result = MATCHERS["cade"](band, band, min_disp=-5, max_disp=5)
+    error = np.abs(densify(result.disparity, result.valid))
     assert np.median(error) < 0.5 and (error < 1).mean() > 0.85
 
 
@@ -75,7 +75,7 @@ def test_float64_input_agrees_with_float32(rng):
     pair = render_pair(rng, (48, 80))
     as32 = MATCHERS["census-sgm"](pair.left, pair.right, max_disp=12)
     as64 = MATCHERS["census-sgm"](pair.left.astype(np.float64), pair.right.astype(np.float64), max_disp=12)
-    np.testing.assert_array_equal(as32.disparity, as64.disparity)
+    np.testing.assert_array_equal(as32.disparity, as64.disparity)  # NaN where invalid, in both
 
 
 def test_inputs_are_not_modified(rng):
@@ -114,5 +114,5 @@ def test_auto_preprocess_runs_the_matchers_choice(rng, name, expected):
     auto = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess="auto")
     chosen = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess=expected)
     other = MATCHERS[name](pair.left, other_band, max_disp=12, preprocess={"none": "cade", "cade": "none"}[expected])
-    assert np.array_equal(auto.disparity, chosen.disparity)
-    assert not np.array_equal(auto.disparity, other.disparity)
+    assert np.array_equal(auto.disparity, chosen.disparity, equal_nan=True)
+    assert not np.array_equal(auto.disparity, other.disparity, equal_nan=True)

@@ -1,4 +1,4 @@
-"""Metrics against values computed by hand on tiny maps."""
+"""Metrics against values computed by hand on tiny maps; the fill stage they rely on."""
 
 from __future__ import annotations
 
@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.metrics import (
+from cade_cli.evaluation.metrics import (
     BAD_THRESHOLDS,
     METRIC_NAMES,
     bad_pixel_rate,
-    densify,
     end_point_error,
+    invalid_percentage,
     score,
 )
+from cade_cli.matching.disparity import densify
 
 NAN = np.nan
 
@@ -80,28 +81,30 @@ def test_bad_inputs_raise_with_shapes():
         bad_pixel_rate(PRED, GT, ALL, threshold=-1.0)
 
 
-def test_densify_fills_from_background_side_and_reports_fraction():
+# The metrics never fill; scored maps go through matching.disparity.densify first (the
+# protocols call it, tests/test_protocols.py). These pin what that stage does to a map.
+
+def test_densify_fills_from_background_side():
     pred = np.array([[NAN, 3.0, NAN, NAN, 7.0, NAN]], np.float32)
     valid = np.array([[False, True, False, False, True, False]])
     before = pred.copy()
-    dense, invalid = densify(pred, valid)
+    dense = densify(pred, valid)
     np.testing.assert_array_equal(dense, [[3, 3, 3, 3, 7, 7]])
     assert dense.dtype == np.float32
-    assert invalid == pytest.approx(4 / 6)
+    assert invalid_percentage(pred, valid) == pytest.approx(400 / 6)
     np.testing.assert_array_equal(pred, before)  # caller's array untouched (NaN == NaN here)
 
 
-def test_densify_treats_non_finite_as_invalid():
+def test_densify_and_invalid_share_treat_non_finite_as_invalid():
     pred = np.array([[9.0, NAN, 2.0], [1.0, 1.0, np.inf]], np.float32)
-    dense, invalid = densify(pred, np.ones((2, 3), bool))
-    np.testing.assert_array_equal(dense, [[9, 2, 2], [1, 1, 1]])
-    assert invalid == pytest.approx(2 / 6)
+    np.testing.assert_array_equal(densify(pred, np.ones((2, 3), bool)), [[9, 2, 2], [1, 1, 1]])
+    assert invalid_percentage(pred, np.ones((2, 3), bool)) == pytest.approx(200 / 6)
 
 
 def test_densify_with_nothing_valid_gives_zeros():
-    dense, invalid = densify(np.full((2, 3), NAN), np.zeros((2, 3), bool))
+    dense = densify(np.full((2, 3), NAN), np.zeros((2, 3), bool))
     np.testing.assert_array_equal(dense, np.zeros((2, 3)))
-    assert invalid == 1.0
+    assert invalid_percentage(np.full((2, 3), NAN), np.zeros((2, 3), bool)) == 100.0
 
 
 def test_score_keys_depend_on_nonocc():
@@ -127,26 +130,26 @@ def test_score_values_by_hand():
     assert result["invalid"] == 0.0
 
 
-def test_score_densifies_invalid_predictions():
-    # middle pixel rejected: filled with min(1, 3) = 1, which is the GT -> no error
+def test_score_counts_invalid_from_validity_and_never_fills():
+    # middle pixel rejected by the matcher but dense: scored as it is, counted as invalid
     pred = np.array([[1.0, 99.0, 3.0]], np.float32)
     gt = np.array([[1.0, 1.0, 3.0]], np.float32)
     result = score(pred, gt, pred_valid=np.array([[True, False, True]]))
-    assert result["epe_all"] == 0.0
+    assert result["epe_all"] == pytest.approx(98 / 3)
     assert result["invalid"] == pytest.approx(100 / 3)
-    # unfilled, the 99 would count
-    assert score(pred, gt)["epe_all"] == pytest.approx(98 / 3)
+    # an unfilled map is refused where GT exists, with the fix in the message ...
+    with pytest.raises(CadeError, match="densify"):
+        score(np.array([[1.0, NAN, 3.0]], np.float32), gt, pred_valid=np.array([[True, False, True]]))
+    # ... and its filled copy scores 0: min(1, 3) = 1 is the GT
+    filled = densify(np.array([[1.0, NAN, 3.0]], np.float32), np.array([[True, False, True]]))
+    assert score(filled, gt)["epe_all"] == 0.0
 
 
-def test_score_clips_only_when_asked():
-    pred = np.array([[-2.0, 10.0]], np.float32)
-    gt = np.array([[0.0, 8.0]], np.float32)
-    before = pred.copy()
-    assert score(pred, gt, max_disp=8)["epe_all"] == pytest.approx(2.0)
-    assert score(pred, gt, max_disp=8, clip=True)["epe_all"] == 0.0
-    np.testing.assert_array_equal(pred, before)
-    with pytest.raises(CadeError, match="max_disp"):
-        score(pred, gt, clip=True)
+def test_score_does_not_modify_its_inputs():
+    pred, gt = PRED.copy(), GT.copy()
+    score(pred, gt, nonocc=ALL, pred_valid=ALL)
+    np.testing.assert_array_equal(pred, PRED)
+    np.testing.assert_array_equal(gt, GT)
 
 
 def test_identical_prediction_scores_zero(rng):

@@ -1,4 +1,5 @@
-"""Protocols: task lists, the bands handed to the matcher, the RGB median, scoring."""
+"""Protocols: task lists and subsets, the bands handed to the matcher (degraded right
+bands), the one fill stage, the RGB median, scoring."""
 
 from __future__ import annotations
 
@@ -6,9 +7,9 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.matching import DisparityResult
-from cade_cli.metrics import score
-from cade_cli.protocols import (
+from cade_cli.evaluation import protocols
+from cade_cli.evaluation.metrics import score
+from cade_cli.evaluation.protocols import (
     MEDIAN_NAME,
     PROTOCOLS,
     get_protocol,
@@ -16,6 +17,9 @@ from cade_cli.protocols import (
     median_combine,
     run_protocol,
 )
+from cade_cli.evaluation.timing import Timing
+from cade_cli.matching import DisparityResult
+from cade_cli.matching.disparity import densify
 
 SHAPE = (6, 9)
 
@@ -141,3 +145,82 @@ def test_bad_images_raise():
         run_protocol("cs", RecordingMatcher(), np.zeros(SHAPE), np.zeros(SHAPE))
     with pytest.raises(CadeError, match="differ"):
         run_protocol("cs", RecordingMatcher(), np.zeros((*SHAPE, 3)), np.zeros((6, 8, 3)))
+
+
+def test_task_subset_runs_only_those_tasks_in_protocol_order(rng):
+    left_rgb, right_rgb = _pair(rng)
+    matcher = RecordingMatcher()
+    results = run_protocol("cs", matcher, left_rgb, right_rgb, tasks=["G>B", "R>B"])
+    assert [r.name for r in results] == ["R>B", "G>B"]
+    assert len(matcher.calls) == 2
+    np.testing.assert_array_equal(matcher.calls[0][0], left_rgb[:, :, 0])
+    np.testing.assert_array_equal(matcher.calls[0][1], right_rgb[:, :, 2])
+
+
+def test_task_subsets_that_break_a_protocol_are_refused():
+    with pytest.raises(CadeError, match="none of the tasks R>G"):
+        get_protocol("rgb").select(["R>G"])
+    with pytest.raises(CadeError, match="combines all of R>R, G>G, B>B"):
+        get_protocol("rgb").select(["R>R", "G>G"])
+    assert get_protocol("rgb").select(None) is get_protocol("rgb")
+
+
+def test_degradation_applies_to_the_right_band_only(rng):
+    left_rgb, right_rgb = _pair(rng)
+    matcher = RecordingMatcher()
+    run_protocol("cs", matcher, left_rgb, right_rgb, tasks=["R>B"], degrade=lambda band: -band)
+    ((left, right),) = matcher.calls
+    np.testing.assert_array_equal(left, left_rgb[:, :, 0])
+    np.testing.assert_array_equal(right, -right_rgb[:, :, 2])
+
+
+def test_every_returned_map_is_the_matchers_map_densified(rng):
+    """The protocols are where the evaluation fills (matching.disparity.densify), once per map."""
+    left_rgb, right_rgb = _pair(rng)
+    raw = rng.uniform(0, 20, SHAPE).astype(np.float32)
+    valid = rng.random(SHAPE) < 0.6
+    unfilled = np.where(valid, raw, np.float32(np.nan))
+
+    def matcher(left, right):
+        return DisparityResult(unfilled.copy(), valid.copy())
+
+    (result,) = run_protocol("native", matcher, left_rgb, right_rgb)
+    np.testing.assert_array_equal(result.disparity, densify(unfilled, valid))
+    np.testing.assert_array_equal(result.valid, valid)
+    assert np.isfinite(result.disparity).all()
+
+
+def test_rgb_median_combines_the_densified_maps_and_is_densified_again(rng, monkeypatch):
+    left_rgb, right_rgb = _pair(rng)
+    row = np.array([[np.nan, 4.0, np.nan, 8.0]], np.float32)  # unfilled: 4 4 4 8 once filled
+    maps = {0: row, 1: np.full((1, 4), 6.0, np.float32), 2: np.full((1, 4), 5.0, np.float32)}
+    valids = {0: np.isfinite(row), 1: np.array([[False, True, True, True]]), 2: np.array([[False, True, True, True]])}
+
+    def matcher(left, right):
+        channel = int(round(float(left.mean())))
+        return DisparityResult(maps[channel].copy(), valids[channel].copy())
+
+    calls = []
+
+    def counting_densify(disparity, valid):
+        calls.append(1)
+        return densify(disparity, valid)
+
+    monkeypatch.setattr(protocols, "densify", counting_densify)
+    left_rgb, right_rgb = left_rgb[:1, :4], right_rgb[:1, :4]
+    *tasks, combined = run_protocol("rgb", matcher, left_rgb, right_rgb)
+    assert len(calls) == 4  # three task maps, then the median
+    np.testing.assert_array_equal(tasks[0].disparity, [[4, 4, 4, 8]])
+    # medians of (4, 6, 5), (4, 6, 5), (4, 6, 5), (8, 6, 5); the first pixel has 0 of 3 valid votes
+    np.testing.assert_array_equal(combined.valid, [[False, True, True, True]])
+    np.testing.assert_array_equal(combined.disparity, [[5, 5, 5, 6]])
+
+
+def test_timing_repeats_the_matcher_and_keeps_the_median(rng):
+    left_rgb, right_rgb = _pair(rng)
+    matcher = RecordingMatcher()
+    prepared = []
+    (result,) = run_protocol("native", matcher, left_rgb, right_rgb, timing=Timing(warmup=2, repeat=3),
+                             prepare=lambda left, right: prepared.append(left.shape))
+    assert len(matcher.calls) == 5 and len(prepared) == 5
+    assert result.seconds >= 0

@@ -37,7 +37,7 @@ def test_groupwise_correlation_matches_a_loop_reference():
 
 
 def test_network_shapes_and_range():
-    net = CadeNet(max_disp=32).eval()
+    net = CadeNet(levels=32).eval()
     with torch.no_grad():
         out = net(torch.rand(1, 1, 48, 64), torch.rand(1, 1, 48, 64))
     assert set(out) == {"disparity", "coarse", "uncertainty"}
@@ -45,11 +45,11 @@ def test_network_shapes_and_range():
     assert 0 <= out["coarse"].min() and out["coarse"].max() <= 32 - 4
     assert parameter_count(net) < 200_000
     with pytest.raises(ValueError, match="multiple of 8"):
-        CadeNet(max_disp=30)
+        CadeNet(levels=30)
 
 
 def test_batches_depend_only_on_seed_and_step():
-    config = TrainConfig(out="unused", textures=[], steps=10, batch=2, height=32, width=64, max_disp=16)
+    config = TrainConfig(out="unused", textures=[], steps=10, batch=2, height=32, width=64, levels=16)
     batches = GeneratedBatches(config)
     first, again, other = batches[3], GeneratedBatches(config)[3], batches[4]
     assert torch.equal(first["left"], again["left"]) and torch.equal(first["disparity"], again["disparity"])
@@ -66,7 +66,7 @@ def test_learning_rate_warms_up_then_decays():
 
 def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=1, height=32, width=64,
-                         max_disp=16, workers=0, validate_every=2, checkpoint_every=2, stop_after=3)
+                         levels=16, workers=0, validate_every=2, checkpoint_every=2, stop_after=3)
     checkpoint = train(config)
     assert torch.load(checkpoint, weights_only=False)["step"] == 3
     config.stop_after = None
@@ -82,8 +82,8 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
 
     onnx_path = tmp_path / "tiny.onnx"
     card = export_checkpoint(checkpoint, onnx_path, tmp_path / "tiny.json", other_ranges=(40, 8, 16))
-    assert card["trained_max_disp"] == 16 and card["divisor"] == 8 and card["steps"] == 6
-    assert [v["max_disp"] for v in card["variants"]] == [8, 16, 40]
+    assert card["trained_levels"] == 16 and card["divisor"] == 8 and card["steps"] == 6
+    assert [v["levels"] for v in card["variants"]] == [8, 16, 40]
     assert [v["file"] for v in card["variants"]] == ["tiny-8.onnx", "tiny.onnx", "tiny-40.onnx"]
     assert all(len(v["sha256"]) == 64 for v in card["variants"])
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
@@ -93,7 +93,7 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
 def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
     from cade_cli.train.export import export_onnx
 
-    net = CadeNet(max_disp=24).eval()
+    net = CadeNet(levels=24).eval()
     for module in net.modules():  # non-trivial batch-norm statistics
         if isinstance(module, (torch.nn.BatchNorm2d, torch.nn.BatchNorm3d)):
             module.running_mean.uniform_(-0.1, 0.1)
@@ -110,7 +110,7 @@ def test_export_output_picks_the_map_and_leaves_the_refinement_net_out_of_coarse
     from cade_cli.train.export import export_onnx
 
     torch.manual_seed(0)
-    net = CadeNet(max_disp=24).eval()
+    net = CadeNet(levels=24).eval()
     torch.nn.init.normal_(net.refinement.net[-1].weight, std=0.1)  # a refinement that changes the map
     path = tmp_path / "net.onnx"
     export_onnx(net, path, output=output)
@@ -129,7 +129,7 @@ def test_export_output_picks_the_map_and_leaves_the_refinement_net_out_of_coarse
 
 def test_export_output_must_be_known():
     with pytest.raises(ValueError, match="coarse"):
-        ExportWrapper(CadeNet(max_disp=16), "refined")
+        ExportWrapper(CadeNet(levels=16), "refined")
 
 
 def test_refinement_sees_a_map_beyond_its_scale_as_relative_depth():
@@ -149,7 +149,7 @@ def test_refinement_sees_a_map_beyond_its_scale_as_relative_depth():
 
 def test_a_3x3x3_entry_kernel_becomes_the_1x1x1_kernel_with_the_same_flat_response():
     torch.manual_seed(0)
-    legacy, current = CadeNet(max_disp=32, **LEGACY_DESIGN).eval(), CadeNet(max_disp=32).eval()
+    legacy, current = CadeNet(levels=32, **LEGACY_DESIGN).eval(), CadeNet(levels=32).eval()
     current.load_state_dict(adapt_state_dict(legacy.state_dict(), current))  # every key, every shape
     wide, narrow = legacy.aggregation.entry[0][0], current.aggregation.entry[0][0]
     assert wide.kernel_size == (3, 3, 3) and narrow.kernel_size == (1, 1, 1)
@@ -161,8 +161,8 @@ def test_a_3x3x3_entry_kernel_becomes_the_1x1x1_kernel_with_the_same_flat_respon
 
 
 def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: Path):
-    legacy = CadeNet(max_disp=16, **LEGACY_DESIGN)
-    config = TrainConfig(out="old", textures=[], max_disp=16)
+    legacy = CadeNet(levels=16, **LEGACY_DESIGN)
+    config = TrainConfig(out="old", textures=[], levels=16)
     old_config = {k: v for k, v in vars(config).items() if k not in ("padding", "entry_kernel")}
     torch.save({"model": legacy.state_dict(), "config": old_config, "step": 1, "elapsed_s": 0.0},
                tmp_path / "legacy.pt")
@@ -171,8 +171,72 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
     assert card["design"] == LEGACY_DESIGN
     # and starts a fine-tuning run of the current design
     tuned = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=32, width=64,
-                        max_disp=16, workers=0, init=str(tmp_path / "legacy.pt"))
+                        levels=16, workers=0, init=str(tmp_path / "legacy.pt"))
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
     assert card["design"] == {"padding": "zeros", "entry_kernel": 1}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
+
+
+class _EchoNet(torch.nn.Module):
+    """Stands in for CadeNet: its 'disparity' is the (padded) left band itself."""
+
+    def __init__(self):
+        super().__init__()
+        self.shapes = []
+
+    def forward(self, left, right):
+        self.shapes.append(tuple(left.shape))
+        return {"disparity": left}
+
+
+def test_validation_pads_like_the_runtime_and_pools_the_benchmark_metrics():
+    from cade_cli.train.fit import evaluate, predict
+
+    net = _EchoNet()
+    left = np.arange(5 * 9, dtype=np.float32).reshape(5, 9)  # not a multiple of the divisor
+    np.testing.assert_array_equal(predict(net, left, left, "cpu"), left)  # padded, then cropped back
+    assert net.shapes == [(1, 1, 8, 16)]
+    gt_a = np.full((5, 9), 0.0, np.float32)
+    gt_a[0, 0] = np.nan  # unknown: not scored
+    gt_b = np.full((2, 3), 1.0, np.float32)
+    ones, fives = np.full((5, 9), 1.0, np.float32), np.full((2, 3), 5.0, np.float32)
+    pairs = [(ones, ones, gt_a), (fives, fives, gt_b)]
+    epe, bad3 = evaluate(net, pairs, "cpu")
+    # pooled over the 44 + 6 scored pixels: errors 1 (44 times) and 4 (6 times)
+    assert epe == pytest.approx((44 * 1 + 6 * 4) / 50)
+    assert bad3 == pytest.approx(100 * 6 / 50)
+
+
+def test_the_gpu_recipe_runs_its_cpu_path_in_budgeted_resumable_calls(tmp_path: Path, monkeypatch):
+    """docs/gpu-recipe.md's options on the CPU: bf16 autocast, data from worker processes
+    (rendered and real pairs), and calls cut short by a time budget that resume where the
+    last one stopped and end at the schedule's last step."""
+    real = tmp_path / "real"
+    for index, name in enumerate(("a", "b")):
+        make_real_scene(real / name, np.random.default_rng(index))
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=2, height=32, width=64, levels=16,
+                         workers=1, validate_every=100, checkpoint_every=100, amp=True, time_budget_s=1e-3,
+                         real_dir=str(real), real_share=0.5)
+    steps = []
+    for _ in range(6):
+        train(config)
+        steps.append(torch.load(tmp_path / "run" / "last.pt", weights_only=False)["step"])
+    assert steps[:4] == [1, 2, 3, 4] and steps[-1] == 4  # one step per call, then nothing left to do
+    rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
+    assert [row["step"] for row in rows if row["set"] == "synthetic"] == ["4"]
+
+
+def make_real_scene(folder: Path, rng: np.random.Generator) -> None:
+    """A scene in the MiddEval3 layout: a random texture shifted by 5 px, ground truth 5."""
+    import cv2
+
+    from cade_cli.disparity_io import write_disparity
+
+    folder.mkdir(parents=True)
+    texture = (rng.random((48, 100, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:85])
+    cv2.imwrite(str(folder / "im1.png"), texture[:, 10:90])  # im1(x - 5) = im0(x)
+    write_disparity(folder / "disp0GT.pfm", np.full((48, 80), 5.0, np.float32))
+    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((48, 80), 255, np.uint8))
+    (folder / "calib.txt").write_text("width=80\nheight=48\nndisp=16\n")

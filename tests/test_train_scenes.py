@@ -42,7 +42,7 @@ def depth_edges(disparity: np.ndarray, radius: int = 2) -> np.ndarray:
 
 @pytest.mark.parametrize("seed", range(6))
 def test_warping_right_with_ground_truth_reproduces_left(seed):
-    scene = render_scene(np.random.default_rng(seed), 96, 160, max_disp=48, textures=TexturePool(),
+    scene = render_scene(np.random.default_rng(seed), 96, 160, limit=48, textures=TexturePool(),
                          photometric=NO_PHOTOMETRIC)
     warped = warp_right_to_left(scene.right, scene.disparity)
     error = np.abs(warped - scene.left).max(axis=2)
@@ -74,7 +74,7 @@ def best_row_offset(scene, offsets: np.ndarray) -> tuple[float, np.ndarray]:
 def test_misaligned_right_view_is_offset_rows_of_an_exact_pair(seed):
     """Misalignment moves the right view's rows only: the left view and its disparity stay
     exact, and warping with the disparity and the drawn row offset reproduces the left."""
-    args = dict(max_disp=48, textures=TexturePool(), photometric=NO_PHOTOMETRIC)
+    args = dict(limit=48, textures=TexturePool(), photometric=NO_PHOTOMETRIC)
     rectified = render_scene(np.random.default_rng(seed), 96, 160, **args)
     misaligned = render_scene(np.random.default_rng(seed), 96, 160, **args,
                               misalignment=Misalignment(share=1.0, offset=1.0, roll=0.0, zoom=0.0))
@@ -104,14 +104,14 @@ def test_misalignment_off_draws_nothing_and_changes_nothing():
     rng, untouched = np.random.default_rng(5), np.random.default_rng(5)
     assert Misalignment(share=0.0, offset=5.0).rows(rng, x, y) is y
     assert rng.random() == untouched.random()
-    a = render_scene(np.random.default_rng(2), 64, 96, max_disp=32, textures=TexturePool())
-    b = render_scene(np.random.default_rng(2), 64, 96, max_disp=32, textures=TexturePool(),
+    a = render_scene(np.random.default_rng(2), 64, 96, limit=32, textures=TexturePool())
+    b = render_scene(np.random.default_rng(2), 64, 96, limit=32, textures=TexturePool(),
                      misalignment=NO_MISALIGNMENT)
     assert np.array_equal(a.right, b.right)
 
 
 def test_occluded_pixels_are_not_seen_by_the_right_view():
-    scene = render_scene(np.random.default_rng(3), 96, 160, max_disp=48, textures=TexturePool(),
+    scene = render_scene(np.random.default_rng(3), 96, 160, limit=48, textures=TexturePool(),
                          photometric=NO_PHOTOMETRIC)
     occluded = ~scene.nonoccluded & ~depth_edges(scene.disparity)
     assert occluded.any()
@@ -123,15 +123,15 @@ def test_occluded_pixels_are_not_seen_by_the_right_view():
 @pytest.mark.parametrize("seed", range(4))
 def test_disparities_cover_the_range_and_stay_inside_it(seed):
     rng = np.random.default_rng(seed)
-    values = np.concatenate([render_scene(rng, 64, 128, max_disp=40, textures=TexturePool()).disparity.ravel()
+    values = np.concatenate([render_scene(rng, 64, 128, limit=40, textures=TexturePool()).disparity.ravel()
                              for _ in range(5)])
     assert values.min() >= 0 and values.max() < 40
     assert values.max() - values.min() > 10
 
 
 def test_same_seed_same_scene_and_views_differ_photometrically():
-    a = render_scene(np.random.default_rng(7), 64, 96, max_disp=32, textures=TexturePool())
-    b = render_scene(np.random.default_rng(7), 64, 96, max_disp=32, textures=TexturePool())
+    a = render_scene(np.random.default_rng(7), 64, 96, limit=32, textures=TexturePool())
+    b = render_scene(np.random.default_rng(7), 64, 96, limit=32, textures=TexturePool())
     assert np.array_equal(a.left, b.left) and np.array_equal(a.disparity, b.disparity)
     assert a.left.dtype == np.float32 and a.left.shape == (64, 96, 3)
     assert 0.0 <= a.left.min() and a.left.max() <= 1.0
@@ -142,7 +142,7 @@ def test_views_are_stored_with_8_bits_as_camera_images_are(share):
     """With ``quantized_share`` 1 every view holds only 8-bit levels; with 0 the same noisy
     camera keeps its float values (the check can fail both ways)."""
     camera = Photometric(noise_sigma=(0.01, 0.02), quantized_share=share)
-    scene = render_scene(np.random.default_rng(5), 48, 64, max_disp=16, textures=TexturePool(), photometric=camera)
+    scene = render_scene(np.random.default_rng(5), 48, 64, limit=16, textures=TexturePool(), photometric=camera)
     for view in (scene.left, scene.right):
         on_levels = np.abs(view * 255 - np.rint(view * 255)) < 1e-3
         assert on_levels.all() if share == 1.0 else on_levels.mean() < 0.1
@@ -179,7 +179,7 @@ def test_procedural_textures_are_rgb_in_unit_range(seed):
 def test_cade_pairs_use_the_runtime_transform_and_band_synthesis():
     assert pairs.color_agnostic is spectral.color_agnostic
     assert pairs.synthesize_bands is spectral.synthesize_bands
-    scene = render_scene(np.random.default_rng(1), 64, 96, max_disp=32, textures=TexturePool())
+    scene = render_scene(np.random.default_rng(1), 64, 96, limit=32, textures=TexturePool())
     pair = cade_pair(scene, np.random.default_rng(2))
     assert set(pair.bands) <= set(spectral.BAND_NAMES)
     # Recompute: same seed draw, same bands, same transform.
@@ -192,7 +192,7 @@ def test_cade_pairs_use_the_runtime_transform_and_band_synthesis():
 
 
 def test_cade_pairs_draw_left_and_right_bands_independently():
-    scene = render_scene(np.random.default_rng(1), 32, 48, max_disp=16, textures=TexturePool())
+    scene = render_scene(np.random.default_rng(1), 32, 48, limit=16, textures=TexturePool())
     drawn = [cade_pair(scene, np.random.default_rng(i)).bands for i in range(60)]
     assert len({left for left, _ in drawn}) > 5 and len({right for _, right in drawn}) > 5
     assert sum(left != right for left, right in drawn) > 40
@@ -215,3 +215,64 @@ def test_shapes_include_thin_structures_and_holes():
         count, _ = cv2.connectedComponents(outside, connectivity=4)
         holed += count > 2  # the background plus at least one enclosed hole
     assert thin >= 10 and holed >= 2
+
+
+def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_path):
+    """A real scene in the MiddEval3 layout (a texture shifted by 5 px) comes out at the
+    training size with its disparity scaled by the zoom, and the right view warped by it
+    reproduces the left view (rows flipped or not)."""
+    import cv2
+
+    from cade_cli.disparity_io import write_disparity
+    from cade_cli.train.real import RealScenes
+
+    rng = np.random.default_rng(0)
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    texture = cv2.GaussianBlur(rng.random((120, 220, 3)).astype(np.float32), (0, 0), 2.0)
+    texture = np.rint(255 * (texture - texture.min()) / (texture.max() - texture.min())).astype(np.uint8)
+    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:205])
+    cv2.imwrite(str(folder / "im1.png"), texture[:, 10:210])  # im1(x - 5) = im0(x)
+    write_disparity(folder / "disp0GT.pfm", np.full((120, 200), 5.0, np.float32))
+    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((120, 200), 255, np.uint8))
+    (folder / "calib.txt").write_text("width=200\nheight=120\nndisp=16\n")
+    pool = RealScenes(tmp_path, zoom=(0.8, 1.6))
+    zooms = set()
+    for _ in range(6):
+        scene = pool.draw(rng, 64, 128, limit=40, photometric=NO_PHOTOMETRIC)
+        assert scene.left.shape == (64, 128, 3) and scene.disparity.shape == (64, 128)
+        zoom = float(np.nanmedian(scene.disparity)) / 5.0
+        zooms.add(round(zoom, 2))
+        assert 0.8 <= zoom <= 1.6 and np.allclose(scene.disparity, 5.0 * zoom, atol=0.05)
+        columns = (np.arange(128)[None, :] - scene.disparity).astype(np.float32)
+        rows = np.repeat(np.arange(64, dtype=np.float32)[:, None], 128, axis=1)
+        warped = cv2.remap(scene.right, columns, rows, cv2.INTER_LINEAR)
+        inside = columns > 1
+        assert np.abs(warped - scene.left)[inside].mean() < 0.02
+    assert len(zooms) > 1
+    with pytest.raises(Exception, match="no real training scenes|no middeval3 scenes"):
+        RealScenes(tmp_path / "scene")
+
+
+def test_learning_curves_chain_runs_by_their_init_and_draw_one_picture(tmp_path):
+    """Each run is drawn from the step its ancestors ended at; the PNG is written."""
+    import json
+
+    from cade_cli.train.curves import plot, read_run
+
+    runs = {}
+    for name, init, steps in (("a", None, 100), ("b", "a", 50)):
+        folder = tmp_path / name
+        folder.mkdir()
+        config = {"steps": steps, "init": str(tmp_path / init / "last.pt") if init else None}
+        (folder / "config.json").write_text(json.dumps(config))
+        (folder / "log.csv").write_text(
+            "step,elapsed_s,lr,loss,train_epe,set,val_epe,val_bad3\n"
+            f"50,1,,,,middlebury05-cs,3.5,30\n{steps},2,,,,middlebury05-cs,3.0,25\n{steps},2,,,,synthetic,9,40\n")
+        runs[name] = read_run(folder, runs)
+    assert [p[0] for p in runs["a"].points["middlebury05-cs"]] == [50, 100]
+    assert [p[0] for p in runs["b"].points["middlebury05-cs"]] == [150, 150]
+    assert "synthetic" not in runs["b"].points
+    pytest.importorskip("matplotlib")
+    plot(list(runs.values()), tmp_path / "curves.png")
+    assert (tmp_path / "curves.png").stat().st_size > 10_000

@@ -3,12 +3,15 @@
 Each matcher is a pipeline of stages (Pandora's split): cost volume
 (:mod:`~cade_cli.matching.cost`) -> aggregation (:mod:`~cade_cli.matching.sgm`) ->
 disparity and validation (:mod:`~cade_cli.matching.disparity`). All return a
-:class:`~cade_cli.matching.base.DisparityResult`: a dense float32 map plus a validity mask.
+:class:`~cade_cli.matching.base.DisparityResult`: an unfilled float32 map (NaN where
+invalid) plus its validity; :func:`~cade_cli.matching.disparity.densify` is the one fill stage.
 """
 
 from __future__ import annotations
 
-from cade_cli.errors import lookup
+from dataclasses import replace
+
+from cade_cli.errors import CadeError, lookup
 from cade_cli.matching.base import (
     PREPROCESS_CHOICES,
     DisparityRange,
@@ -16,7 +19,9 @@ from cade_cli.matching.base import (
     Matcher,
 )
 from cade_cli.matching.classical import OpenCvSgbm, census_sgm, zncc_sgm
-from cade_cli.matching.learned import CadeNetwork
+from cade_cli.matching.disparity import densify
+from cade_cli.matching.learned import LearnedPipeline
+from cade_cli.matching.network import NetworkStage
 
 MATCHERS: dict[str, Matcher] = {
     matcher.name: matcher
@@ -24,26 +29,43 @@ MATCHERS: dict[str, Matcher] = {
         # Census and ZNCC are already invariant to gain and offset: the CADE transform
         # only adds noise for them; SGBM's absolute-difference cost needs it.
         Matcher("census-sgm", "Census 7x7 Hamming cost + 8-path SGM, LR check (own implementation)",
-                census_sgm, 7, best_preprocess="none"),
+                census_sgm, 7, preprocessing=("none", "cade")),
         Matcher("zncc-sgm", "1 - ZNCC 5x5 cost + 8-path SGM, LR check (own implementation)",
-                zncc_sgm, 5, best_preprocess="none"),
+                zncc_sgm, 5, preprocessing=("none", "cade")),
         Matcher("sgbm", "OpenCV StereoSGBM, 8 paths, 5x5 blocks (mono-modal reference)",
-                OpenCvSgbm(), 5, best_preprocess="cade"),
+                OpenCvSgbm(), 5, preprocessing=("cade", "none")),
         # The network was trained on color-agnostic bands only (it applies the transform
         # itself: its refinement matches the raw bands); memory is bounded by strips and
         # a pyramid, not by the range.
         Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v4), "
                 "refined by SGM of the rank-transformed raw bands over the whole range, kept within 32 px of "
                 "its estimate",
-                CadeNetwork(), 8, best_preprocess="cade", accepts_raw=False, transforms_itself=True,
-                volume_bytes=0),
+                LearnedPipeline(), 8, preprocessing=("cade",), volume_bytes=0),
+        # The same network without the refinement: to see what the network alone does
+        # (benchmarks/cade_errors.py, the training ablation), not a better matcher.
+        Matcher("cade-network", "the CADE network alone (cade without the full-resolution refinement)",
+                LearnedPipeline(refinement=None), 8, preprocessing=("cade",), volume_bytes=0),
     )
 }
 
 
-def get_matcher(name: str) -> Matcher:
-    """The registered matcher called ``name``; raises :class:`CadeError` listing the choices."""
-    return lookup(MATCHERS, name, kind="method")
+LEARNED_METHODS: tuple[str, ...] = tuple(name for name, m in MATCHERS.items() if isinstance(m.kernel, LearnedPipeline))
+"""The methods that run a network (and so take a ``model``)."""
 
 
-__all__ = ["MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "get_matcher"]
+def get_matcher(name: str, *, model: str | None = None) -> Matcher:
+    """The registered matcher called ``name``; raises :class:`CadeError` listing the choices.
+
+    ``model`` (a model card's path, or a card name in :func:`cade_cli.model_card.model_dir`)
+    makes a learned matcher run that network instead of the shipped one; the classical
+    matchers have no model and refuse it."""
+    matcher = lookup(MATCHERS, name, kind="method")
+    if model is None:
+        return matcher
+    if name not in LEARNED_METHODS:
+        raise CadeError(f"method {name} has no network; --model applies to {', '.join(LEARNED_METHODS)}")
+    kernel = replace(matcher.kernel, network=NetworkStage(model=str(model)))
+    return replace(matcher, kernel=kernel, summary=f"{matcher.summary}; model {model}")
+
+
+__all__ = ["LEARNED_METHODS", "MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "densify", "get_matcher"]

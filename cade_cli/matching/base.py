@@ -12,8 +12,9 @@ from cade_cli.spectral import color_agnostic
 
 Preprocess = Literal["auto", "none", "cade"]
 PREPROCESS_CHOICES: tuple[str, ...] = ("auto", "none", "cade")
-"""``cade``: color agnostic transform on both bands first; ``none``: bands as given;
-``auto``: the matcher's own choice (:attr:`Matcher.best_preprocess`)."""
+"""``cade``: the color agnostic transform (:func:`~cade_cli.spectral.color_agnostic`) on
+both bands first; ``none``: bands as given; ``auto``: the matcher's own choice (the first
+of :attr:`Matcher.preprocessing`)."""
 
 
 @dataclass(frozen=True)
@@ -29,7 +30,13 @@ class DisparityRange:
 
     @property
     def count(self) -> int:
+        """Number of disparities searched."""
         return self.maximum - self.minimum + 1
+
+    @property
+    def span(self) -> int:
+        """``maximum - minimum``, px."""
+        return self.maximum - self.minimum
 
     def check_for_width(self, width: int) -> None:
         """Raise :class:`CadeError` unless the range is usable on images ``width`` wide."""
@@ -49,9 +56,9 @@ class DisparityResult:
     """Output of a matcher for the left (reference) view.
 
     Attributes:
-        disparity: (H, W) float32 in pixels of the input images, dense: pixels that
-            failed validation are filled (from the background side along the row), so
-            every value is finite.
+        disparity: (H, W) float32 in pixels of the input images, unfilled: NaN where
+            ``valid`` is False (:func:`~cade_cli.matching.disparity.densify` is the one
+            fill stage).
         valid: (H, W) bool, False where the matcher rejected its own estimate
             (left-right inconsistency, outside the right view, ...).
     """
@@ -60,15 +67,19 @@ class DisparityResult:
     valid: np.ndarray
 
 
-Kernel = Callable[[np.ndarray, np.ndarray, DisparityRange], DisparityResult]
+Kernel = Callable[..., DisparityResult]
+"""``kernel(left, right, disparity_range, *, preprocess) -> DisparityResult`` on (H, W)
+float32 raw bands; ``preprocess`` is one of the matcher's :attr:`Matcher.preprocessing`."""
 
 
 @dataclass(frozen=True)
 class Matcher:
-    """A named stereo matcher: preprocessing, checks, then its kernel.
+    """A named stereo matcher: input checks, then its kernel (a pipeline of stages).
 
-    Calling it runs ``kernel(left, right, disparity_range)`` on the two bands, after
-    the CADE transform when ``preprocess="cade"``.
+    Calling it resolves ``preprocess`` and runs ``kernel(left, right, disparity_range,
+    preprocess=...)``; each kernel applies its preprocessing stage itself
+    (:func:`preprocessed`), so the CADE pipeline can give the network the transformed
+    bands and its refinement the raw ones.
     """
 
     name: str
@@ -76,15 +87,9 @@ class Matcher:
     kernel: Kernel
     min_size: int = 3
     """Smallest image side the kernel can work with (its matching window)."""
-    best_preprocess: str = "cade"
-    """What ``preprocess="auto"`` means for this matcher: the more accurate of
-    ``none`` / ``cade`` on the cross-spectral benchmark (benchmarks/cross_spectral.py)."""
-    accepts_raw: bool = True
-    """False for matchers that only work on color-agnostic bands (the CADE network)."""
-    transforms_itself: bool = False
-    """True for kernels that need the raw bands besides their CADE transform (the CADE
-    network refines its estimate on the raw bands): they get the raw bands and apply the
-    transform themselves where ``preprocess`` resolves to ``"cade"``."""
+    preprocessing: tuple[str, ...] = ("cade", "none")
+    """The ``preprocess`` values this matcher accepts; ``"auto"`` means the first, its more
+    accurate one on the cross-spectral benchmark (benchmarks/cross_spectral.py)."""
     volume_bytes: int = 20
     """Bytes the kernel holds per pixel and searched disparity (0: memory does not grow
     with the range); :func:`cade_cli.stereo.estimate_disparity` refuses requests beyond
@@ -94,9 +99,10 @@ class Matcher:
         """``preprocess`` with ``"auto"`` replaced by this matcher's choice."""
         if preprocess not in PREPROCESS_CHOICES:
             raise CadeError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS_CHOICES)}")
-        resolved = self.best_preprocess if preprocess == "auto" else preprocess
-        if resolved == "none" and not self.accepts_raw:
-            raise CadeError(f"method {self.name} works on color-agnostic bands only; use --preprocess cade or auto")
+        resolved = self.preprocessing[0] if preprocess == "auto" else preprocess
+        if resolved not in self.preprocessing:
+            raise CadeError(f"method {self.name} takes --preprocess {' or '.join(self.preprocessing)} (or auto), "
+                            f"not {resolved}")
         return resolved
 
     def __call__(
@@ -114,14 +120,25 @@ class Matcher:
             left, right: (H, W) float bands of the same shape (any intensity units).
             max_disp, min_disp: inclusive search range in pixels.
             preprocess: ``"cade"`` (color agnostic transform on both bands), ``"none"``,
-                or ``"auto"`` (:attr:`best_preprocess`).
+                or ``"auto"`` (the first of :attr:`preprocessing`).
+
+        Returns:
+            the unfilled :class:`DisparityResult` (NaN where invalid).
         """
         left, right = check_pair(left, right, min_size=self.min_size)
         disparity_range = DisparityRange(int(min_disp), int(max_disp))
         disparity_range.check_for_width(left.shape[1])
-        if self.resolve_preprocess(preprocess) == "cade" and not self.transforms_itself:
-            left, right = color_agnostic(left), color_agnostic(right)
-        return self.kernel(left, right, disparity_range)
+        return self.kernel(left, right, disparity_range, preprocess=self.resolve_preprocess(preprocess))
+
+
+def preprocessed(left: np.ndarray, right: np.ndarray, preprocess: str) -> tuple[np.ndarray, np.ndarray]:
+    """The preprocessing stage of the classical pipelines: both bands through
+    :func:`~cade_cli.spectral.color_agnostic` for ``"cade"``, as given for ``"none"``."""
+    if preprocess == "cade":
+        return color_agnostic(left), color_agnostic(right)
+    if preprocess == "none":
+        return left, right
+    raise CadeError(f"unknown preprocess {preprocess!r}; choose cade or none")
 
 
 def check_pair(left: np.ndarray, right: np.ndarray, *, min_size: int) -> tuple[np.ndarray, np.ndarray]:

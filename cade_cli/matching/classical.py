@@ -9,7 +9,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.base import DisparityRange, DisparityResult, preprocessed
 from cade_cli.matching.cost import CostVolume, census_cost, quantize, zncc_cost
 from cade_cli.matching.disparity import (
     fill_invalid_along_rows,
@@ -24,7 +24,8 @@ CostFunction = Callable[[np.ndarray, np.ndarray, DisparityRange], CostVolume]
 
 @dataclass(frozen=True)
 class SgmPipeline:
-    """cost -> 8-path SGM -> WTA + parabola -> left-right check -> row fill -> median.
+    """cost -> 8-path SGM -> WTA + parabola -> left-right check -> median (of the
+    row-filled map, kept at the valid pixels); the result is unfilled (NaN where invalid).
 
     Attributes:
         cost: builds the (H, W, D) lower-is-better volume.
@@ -43,7 +44,9 @@ class SgmPipeline:
     lr_tolerance: float = 1.0
     median: int = 3
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *,
+                 preprocess: str = "none") -> DisparityResult:
+        left, right = preprocessed(left, right, preprocess)
         cost = self.cost(left, right, disparity_range)
         if self.quantize_scale is not None:
             cost = quantize(cost, scale=self.quantize_scale)
@@ -51,10 +54,9 @@ class SgmPipeline:
         left_disparity = winner_takes_all(aggregated)
         right_disparity = winner_takes_all(right_view_cost(aggregated))
         valid = left_right_check(left_disparity, right_disparity, tolerance=self.lr_tolerance)
-        dense = fill_invalid_along_rows(left_disparity, valid)
-        if self.median > 1:
-            dense = cv2.medianBlur(dense, self.median)
-        return DisparityResult(dense, valid)
+        if self.median > 1:  # the median needs a dense map; its values are kept where valid
+            left_disparity = cv2.medianBlur(fill_invalid_along_rows(left_disparity, valid), self.median)
+        return DisparityResult(np.where(valid, left_disparity, np.float32(np.nan)), valid)
 
 
 # Census costs are bit counts (0..48 for 7x7); ZNCC costs (0..2) are quantized x32.
@@ -68,33 +70,35 @@ class OpenCvSgbm:
 
     Bands are stretched to uint8 over their own min..max. OpenCV needs a disparity count
     divisible by 16, so it searches a slightly wider range; estimates outside the
-    requested range and OpenCV's own rejects are marked invalid, then filled like the
-    other matchers.
+    requested range and OpenCV's own rejects are marked invalid (NaN).
     """
 
     block_size: int = 5
     uniqueness_ratio: int = 10
     full_dp: bool = True
 
-    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> DisparityResult:
-        count = opencv_sgbm_levels(disparity_range.count)
-        area = self.block_size * self.block_size
-        matcher = cv2.StereoSGBM_create(
-            minDisparity=disparity_range.minimum,
-            numDisparities=count,
-            blockSize=self.block_size,
-            P1=8 * area,
-            P2=32 * area,
-            disp12MaxDiff=1,
-            uniquenessRatio=self.uniqueness_ratio,
-            speckleWindowSize=100,
-            speckleRange=2,
-            preFilterCap=63,
-            mode=cv2.STEREO_SGBM_MODE_HH if self.full_dp else cv2.STEREO_SGBM_MODE_SGBM,
-        )
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *,
+                 preprocess: str = "none") -> DisparityResult:
+        left, right = preprocessed(left, right, preprocess)
+        matcher = sgbm_matcher(disparity_range.minimum, disparity_range.count, block=self.block_size,
+                               p1=8, p2=32, uniqueness=self.uniqueness_ratio, prefilter_cap=63,
+                               mode=cv2.STEREO_SGBM_MODE_HH if self.full_dp else cv2.STEREO_SGBM_MODE_SGBM)
         raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
         valid = (raw >= disparity_range.minimum) & (raw <= disparity_range.maximum)
-        return DisparityResult(fill_invalid_along_rows(raw, valid), valid)
+        return DisparityResult(np.where(valid, raw, np.float32(np.nan)), valid)
+
+
+def sgbm_matcher(minimum: int, count: int, *, block: int, p1: int, p2: int, uniqueness: int, prefilter_cap: int,
+                 mode: int) -> cv2.StereoSGBM:
+    """OpenCV's StereoSGBM over disparities ``minimum`` .. ``minimum + count - 1`` (widened
+    to :func:`opencv_sgbm_levels`), penalties ``p1``/``p2`` per pixel of the ``block`` x
+    ``block`` window, ``disp12MaxDiff`` 1, speckle filter (100 px, 2 px). The one builder
+    behind the ``sgbm`` matcher and the CADE matcher's refinement."""
+    area = block * block
+    return cv2.StereoSGBM_create(
+        minDisparity=minimum, numDisparities=opencv_sgbm_levels(count), blockSize=block, P1=p1 * area,
+        P2=p2 * area, disp12MaxDiff=1, uniquenessRatio=uniqueness, speckleWindowSize=100, speckleRange=2,
+        preFilterCap=prefilter_cap, mode=mode)
 
 
 def opencv_sgbm_levels(count: int) -> int:

@@ -1,4 +1,5 @@
-"""Disparity stage (winner-takes-all + sub-pixel) and validation (left-right check, fill)."""
+"""Disparity stage (winner-takes-all + sub-pixel), validation (left-right check, visibility)
+and the one fill stage (:func:`densify`)."""
 
 from __future__ import annotations
 
@@ -125,3 +126,25 @@ def fill_invalid_along_rows(disparity: np.ndarray, valid: np.ndarray) -> np.ndar
     if empty_rows.any():
         filled[empty_rows] = np.median(disparity[valid])
     return filled.astype(np.float32, copy=False)
+
+
+def densify(disparity: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The fill stage: a dense map from a matcher's unfilled one.
+
+    Pixels where ``valid`` is False or ``disparity`` is not finite take the background-side
+    value along their row (:func:`fill_invalid_along_rows`, as MiddEval3 fills before
+    scoring). With no valid pixel at all the map is all zeros. This is the only place
+    where the CLI, the registration and the benchmark fill a disparity map.
+
+    Args:
+        disparity: (H, W) float disparity in pixels, NaN (or anything) where invalid.
+        valid: (H, W) bool, True where the matcher trusts its estimate.
+
+    Returns:
+        (H, W) float32, finite everywhere; the inputs are not modified.
+    """
+    disparity, valid = np.asarray(disparity), np.asarray(valid, bool)
+    valid = valid & np.isfinite(disparity)
+    if not valid.any():
+        return np.zeros(disparity.shape, np.float32)
+    return fill_invalid_along_rows(np.where(valid, disparity, np.float32(0)), valid)

@@ -24,7 +24,7 @@ def fit(
     batch: Annotated[int, typer.Option(min=1)] = 4,
     height: Annotated[int, typer.Option(min=64)] = 192,
     width: Annotated[int, typer.Option(min=64)] = 320,
-    max_disp: Annotated[int, typer.Option(min=16)] = 128,
+    levels: Annotated[int, typer.Option(min=16, help="Search width: disparities 0 .. LEVELS - 1 px.")] = 128,
     lr: float = 1e-3,
     seed: int = 0,
     device: Annotated[str, typer.Option(help="cpu or cuda")] = "cpu",
@@ -44,16 +44,27 @@ def fit(
                                               "vertically misaligned by up to 1 px (the cade-v5 experiment: 0.5; "
                                               "the shipped cade-v4: 0).")]
     = 0.0,
+    real_dir: Annotated[Path | None, typer.Option(help="Folder of real training scenes in the MiddEval3 layout "
+                                                  "(../shared/data/train-real); never a reporting set.")] = None,
+    real_share: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs cut from a real "
+                                              "scene instead of rendered (needs --real-dir).")] = 0.0,
+    amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
+    time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
+                                                      "in this process (resume with the same command).")] = None,
 ) -> None:
     """Train (or resume) a run."""
+    if real_share > 0 and real_dir is None:
+        raise typer.BadParameter("--real-share needs --real-dir", param_hint="--real-share")
     from cade_cli.train.fit import TrainConfig, train
 
     config = TrainConfig(out=str(out), textures=[str(t) for t in textures],
                          data_dir=str(data_dir) if data_dir else None, steps=steps, batch=batch, height=height,
-                         width=width, max_disp=max_disp, lr=lr, seed=seed, device=device, threads=threads,
+                         width=width, levels=levels, lr=lr, seed=seed, device=device, threads=threads,
                          workers=workers, validate_every=validate_every, stop_after=stop_after,
                          init=str(init) if init else None, warmup=warmup, padding=padding,
-                         entry_kernel=entry_kernel, misaligned=misaligned)
+                         entry_kernel=entry_kernel, misaligned=misaligned,
+                         real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
+                         time_budget_s=time_budget)
     train(config, resume=resume)
 
 
@@ -77,9 +88,28 @@ def export(
                              extra={"hardware": hardware} if hardware else None, output=output)
     for variant in card["variants"]:
         path = onnx_path.with_name(variant["file"])
-        print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, range {variant['max_disp']}), "
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, {variant['levels']} levels), "
               f"sha256 {variant['sha256']}")
     print(f"max |ONNX - PyTorch| = {card['onnx_vs_torch_max_abs_diff']:.2e} px")
+
+
+@app.command()
+def curves(
+    runs: Annotated[list[Path], typer.Argument(exists=True, file_okay=False, help="Run folders, ancestors first.")],
+    output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path("docs/learning-curves.png"),
+    data_dir: Annotated[Path | None, typer.Option(help="Folder holding middlebury2005/ and middlebury2014/, to "
+                                                  "score runs whose log lacks a validation set.")] = None,
+) -> None:
+    """Draw validation EPE / bad-3 of RUNS against training steps into one PNG."""
+    from cade_cli.train.curves import fill_final_points, plot, read_run
+
+    chain = {}
+    for folder in runs:
+        curve = read_run(folder, chain)
+        fill_final_points(curve, folder, data_dir)
+        chain[folder.name] = curve
+    plot(list(chain.values()), output)
+    print(f"wrote {output}")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,6 @@ full resolution instead, without the refinement net
 
 from __future__ import annotations
 
-import json
 import warnings
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 import torch
 
 from cade_cli.checksum import file_sha256
+from cade_cli.model_card import write_card
 from cade_cli.train.model import DIVISOR, EXPORT_OUTPUTS, CadeNet, ExportWrapper, design_of, parameter_count
 
 OPSET = 17
@@ -34,16 +34,17 @@ narrower 96 runs spans up to 88 px a fifth faster (see models/README.md)."""
 
 def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    net = CadeNet(state["config"]["max_disp"], **design_of(state["config"]))
+    config = state["config"]
+    net = CadeNet(config.get("levels", config.get("max_disp")), **design_of(config))  # "max_disp": runs before v6
     net.load_state_dict(state["model"])
     return net.eval(), state
 
 
-def with_range(net: CadeNet, max_disp: int) -> CadeNet:
-    """The same weights searching ``max_disp`` (no weight depends on the range)."""
-    if max_disp == net.max_disp:
+def with_range(net: CadeNet, levels: int) -> CadeNet:
+    """The same weights searching ``levels`` px wide (no weight depends on the range)."""
+    if levels == net.levels:
         return net
-    wide = CadeNet(max_disp, **net.design)
+    wide = CadeNet(levels, **net.design)
     wide.load_state_dict(net.state_dict())
     return wide.eval()
 
@@ -86,37 +87,25 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
                       other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity") -> dict:
     """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
 
-    The trained range goes to ``onnx_path``, another range R to ``<stem>-R.onnx`` beside
-    it; the card lists them narrowest first."""
+    The trained width goes to ``onnx_path``, another width of R levels (disparities
+    0 .. R - 1) to ``<stem>-R.onnx`` beside it; the card (:mod:`cade_cli.model_card`)
+    lists them narrowest first."""
     net, state = load_checkpoint(checkpoint)
-    targets = sorted([(net.max_disp, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
-                                                    for r in set(other_ranges) if r != net.max_disp])
+    targets = sorted([(net.levels, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
+                                                    for r in set(other_ranges) if r != net.levels])
     variants, max_difference = [], 0.0
-    for max_disp, path in targets:
-        variant_net = with_range(net, max_disp)
+    for levels, path in targets:
+        variant_net = with_range(net, levels)
         export_onnx(variant_net, path, output=output)
         max_difference = max(max_difference, verify_onnx(variant_net, path, output=output))
-        variants.append({"max_disp": max_disp, "file": path.name, "sha256": file_sha256(path)})
-    card = {
-        "name": onnx_path.stem,
-        "architecture": "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
+        variants.append({"levels": levels, "file": path.name, "sha256": file_sha256(path)})
+    return write_card(
+        card_path, name=onnx_path.stem, divisor=DIVISOR, trained_levels=net.levels, variants=variants,
+        architecture= "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
                         "-> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
                                             " -> bilinear x4 (refinement net trained, not exported)"),
-        "output": output,
-        "parameters": parameter_count(net),
-        "design": net.design,
-        "trained_max_disp": net.max_disp,
-        "variants": variants,
-        "divisor": DIVISOR,
-        "inputs": INPUT_NAMES,
-        "outputs": OUTPUT_NAMES,
-        "input_transform": "cade_cli.spectral.color_agnostic (window 3) on each band",
-        "opset": OPSET,
-        "onnx_vs_torch_max_abs_diff": max_difference,
-        "steps": state["step"],
-        "train_wall_time_s": round(state["elapsed_s"]),
-        "train_config": state["config"],
-        **(extra or {}),
-    }
-    card_path.write_text(json.dumps(card, indent=2) + "\n")
-    return card
+        output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
+        input_transform="cade_cli.spectral.color_agnostic (window 3) on each band", opset=OPSET,
+        onnx_vs_torch_max_abs_diff=max_difference, steps=state["step"], train_wall_time_s=round(state["elapsed_s"]),
+        train_config=state["config"], **(extra or {}),
+    )

@@ -18,8 +18,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
+from cade_cli.matching.network import pad_to_divisor
 from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count
 from cade_cli.train.pairs import cade_pair
+from cade_cli.train.real import RealScenes
 from cade_cli.train.scenes import Misalignment, TexturePool, render_scene
 
 
@@ -32,7 +35,8 @@ class TrainConfig:
     batch: int = 4
     height: int = 192
     width: int = 320
-    max_disp: int = 128
+    levels: int = 128
+    """CadeNet's search width: disparities 0 .. levels - 1 px (the model card's ``levels``)."""
     lr: float = 1e-3
     warmup: int = 200
     seed: int = 0
@@ -55,6 +59,17 @@ class TrainConfig:
     """Share of training pairs whose right view is vertically misaligned
     (:class:`~cade_cli.train.scenes.Misalignment`: up to 1 px, plus a slight roll and zoom);
     cade-v1 … v4 saw perfectly rectified pairs only. Validation pairs stay rectified."""
+    real_dir: str | None = None
+    """Folder of real training scenes (MiddEval3 layout, ``../shared/data/train-real``)."""
+    real_share: float = 0.0
+    """Share of training pairs cut from a real scene instead of rendered (needs ``real_dir``);
+    cade-v1 … v4: 0."""
+    amp: bool = False
+    """Mixed precision: the forward pass and the loss under bf16 autocast (the GPU recipe,
+    docs/gpu-recipe.md); weights, gradients and the optimizer stay float32."""
+    time_budget_s: float | None = None
+    """Leave the loop, checkpointed, once this many seconds have passed in this process
+    (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""
 
 
 class GeneratedBatches(torch.utils.data.Dataset):
@@ -63,6 +78,7 @@ class GeneratedBatches(torch.utils.data.Dataset):
     def __init__(self, config: TrainConfig):
         self.config = config
         self.pool: TexturePool | None = None
+        self.real: RealScenes | None = None
 
     def __len__(self) -> int:
         return self.config.steps
@@ -71,17 +87,25 @@ class GeneratedBatches(torch.utils.data.Dataset):
         config = self.config
         if self.pool is None:
             self.pool = TexturePool([Path(folder) for folder in config.textures])
+            self.real = RealScenes(Path(config.real_dir)) if config.real_share > 0 else None
         rng = np.random.default_rng([config.seed, step])
-        return collate([generated_pair(rng, self.pool, config.height, config.width, config.max_disp,
-                                       misaligned=config.misaligned)
-                        for _ in range(config.batch)])
+        return collate([training_pair(rng, self.pool, self.real, config) for _ in range(config.batch)])
 
 
-def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, max_disp: int, *,
+def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig):
+    """One CADE training pair: cut from a real scene with probability ``config.real_share``
+    (no random draw for that when the share is 0, so earlier runs reproduce), else rendered."""
+    if real is not None and rng.random() < config.real_share:
+        scene = real.draw(rng, config.height, config.width, limit=config.levels - 1)
+        return cade_pair(scene, rng)
+    return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned)
+
+
+def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
                    misaligned: float = 0.0):
-    """One CADE pair of a freshly rendered scene; disparities below ``max_disp``; a share
+    """One CADE pair of a freshly rendered scene; disparities below ``levels - 1`` px; a share
     ``misaligned`` of the pairs has a vertically misaligned right view."""
-    scene = render_scene(rng, height, width, max_disp=max_disp - 1, textures=pool,
+    scene = render_scene(rng, height, width, limit=levels - 1, textures=pool,
                          misalignment=Misalignment(share=misaligned))
     return cade_pair(scene, rng)
 
@@ -103,77 +127,80 @@ def learning_rate(config: TrainConfig, step: int) -> float:
     return config.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
 
 
-def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, max_disp: int, coarse_weight: float):
-    mask = (target >= 0) & (target < max_disp)
+def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, coarse_weight: float):
+    mask = (target >= 0) & (target < levels)
     fine = F.smooth_l1_loss(out["disparity"][mask], target[mask])
     coarse = F.smooth_l1_loss(out["coarse"][mask], target[mask])
     return fine + coarse_weight * coarse, mask
 
 
-def pad_to_divisor(image: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int]]:
-    height, width = image.shape[-2:]
-    pad_h, pad_w = -height % DIVISOR, -width % DIVISOR
-    if pad_h or pad_w:
-        image = F.pad(image, (0, pad_w, 0, pad_h), mode="replicate")
-    return image, (height, width)
-
-
 @torch.no_grad()
 def predict(net: CadeNet, left: np.ndarray, right: np.ndarray, device: str) -> np.ndarray:
-    """Disparity of one pair of CADE bands (H, W), any size (padded, then cropped)."""
-    tensors = [pad_to_divisor(torch.from_numpy(band)[None, None].to(device))[0] for band in (left, right)]
+    """(H, W) float32 disparity (px) of one pair of CADE bands (H, W), any size: padded as the
+    runtime pads (:func:`cade_cli.matching.network.pad_to_divisor`), then cropped back."""
+    padded = [pad_to_divisor(band, DIVISOR)[0] for band in (left, right)]
+    tensors = [torch.from_numpy(band)[None, None].to(device) for band in padded]
     disparity = net(*tensors)["disparity"][0, 0, : left.shape[0], : left.shape[1]]
     return disparity.cpu().numpy()
 
 
-def validation_sets(config: TrainConfig) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Fixed validation pairs: 24 generated CS pairs (seed 10**6 + i, never a training
-    seed) and, when ``data_dir`` holds it, Middlebury 2014 Q in the CS tasks R>B and B>R,
-    downscaled by powers of 2 until the scene's range fits the model."""
+    seed; only with ``synthetic``) and, when ``data_dir`` holds them, Middlebury 2014 Q and
+    Middlebury 2005 in the CS tasks R>B and B>R, downscaled by powers of 2 until the scene's
+    range fits the model."""
     import cv2
 
+    from cade_cli.errors import CadeError
     from cade_cli.spectral import color_agnostic
 
-    pool = TexturePool([Path(folder) for folder in config.textures])
-    synthetic = []
-    for i in range(24):
-        pair = generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.max_disp)
-        synthetic.append((pair.left, pair.right, pair.disparity))
-    sets = {"synthetic": synthetic}
+    sets = {}
+    if synthetic:
+        pool = TexturePool([Path(folder) for folder in config.textures])
+        pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.levels) for i in range(24))
+        sets["synthetic"] = [(pair.left, pair.right, pair.disparity) for pair in pairs]
     if config.data_dir and Path(config.data_dir).is_dir():
-        from cade_cli.datasets import get_dataset
-        from cade_cli.matching.learned import RANGE_MARGIN, pyramid_factor
+        from cade_cli.data import get_dataset
+        from cade_cli.matching.network import RANGE_MARGIN, pyramid_factor
 
-        middlebury = []
-        for scene in get_dataset("middlebury14")(Path(config.data_dir), resolution="Q"):
-            scale = pyramid_factor(scene.max_disp, config.max_disp - RANGE_MARGIN)  # as the runtime does
-            size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
-            left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
-            gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
-            for a, b in ((0, 2), (2, 0)):
-                middlebury.append((color_agnostic(left[..., a]), color_agnostic(right[..., b]), gt))
-        sets["middlebury14Q-cs"] = middlebury
+        for name, dataset, resolution in (("middlebury14Q-cs", "middlebury14", "Q"),
+                                          ("middlebury05-cs", "middlebury05", None)):
+            middlebury = []
+            try:
+                scenes = list(get_dataset(dataset)(Path(config.data_dir), resolution=resolution))
+            except CadeError:
+                continue
+            for scene in scenes:
+                scale = pyramid_factor(scene.max_disp, config.levels - RANGE_MARGIN)  # as the runtime does
+                size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
+                left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
+                gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
+                for a, b in ((0, 2), (2, 0)):
+                    middlebury.append((color_agnostic(left[..., a]), color_agnostic(right[..., b]), gt))
+            sets[name] = middlebury
     return sets
 
 
 def evaluate(net: CadeNet, pairs, device: str) -> tuple[float, float]:
-    """EPE and bad-3 (%) over all pixels with finite ground truth."""
-    errors = []
-    for left, right, gt in pairs:
-        valid = np.isfinite(gt)
-        errors.append(np.abs(predict(net, left, right, device) - gt)[valid])
-    error = np.concatenate(errors)
-    return float(error.mean()), float(100 * (error > 3).mean())
+    """EPE (px) and bad-3 (%) over all pixels with finite ground truth of all ``pairs``
+    together (pooled: each pixel weighs the same), with the benchmark's metrics."""
+    predictions, truths = zip(*((predict(net, left, right, device).ravel(), gt.ravel()) for left, right, gt in pairs))
+    prediction, gt = np.concatenate(predictions)[None], np.concatenate(truths)[None]  # one (1, N) map
+    everywhere = np.ones(gt.shape, bool)  # the metrics skip pixels without GT themselves
+    return end_point_error(prediction, gt, everywhere), bad_pixel_rate(prediction, gt, everywhere, threshold=3.0)
 
 
 def train(config: TrainConfig, *, resume: bool = True) -> Path:
     """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
     torch.set_num_threads(config.threads)
+    device_type = torch.device(config.device).type
+    if device_type == "cuda":
+        torch.backends.cudnn.benchmark = True  # fixed crop size: let cuDNN pick its fastest kernels
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "last.pt"
     torch.manual_seed(config.seed)
-    net = CadeNet(config.max_disp, **design_of(asdict(config))).to(config.device)
+    net = CadeNet(config.levels, **design_of(asdict(config))).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     start, elapsed_before = 0, 0.0
     if resume and checkpoint_path.exists():
@@ -198,6 +225,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     batches = torch.utils.data.DataLoader(
         torch.utils.data.Subset(GeneratedBatches(config), range(start, min(config.steps, config.stop_after or config.steps))),
         batch_size=None, num_workers=config.workers, persistent_workers=False, prefetch_factor=4 if config.workers else None,
+        pin_memory=device_type == "cuda",
     )
     started = time.time()
     running_loss, running_epe, seen = 0.0, 0.0, 0
@@ -205,9 +233,11 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     for step, batch in enumerate(batches, start=start):
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step)
-        batch = {key: value.to(config.device) for key, value in batch.items()}
-        out_ = net(batch["left"], batch["right"])
-        loss, mask = loss_terms(out_, batch["disparity"], config.max_disp, config.coarse_weight)
+        batch = {key: value.to(config.device, non_blocking=True) for key, value in batch.items()}
+        with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
+            out_ = net(batch["left"], batch["right"])
+            out_ = {key: value.float() for key, value in out_.items()}
+            loss, mask = loss_terms(out_, batch["disparity"], config.levels, config.coarse_weight)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
@@ -231,8 +261,13 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
                 print(f"  validation {name}: EPE {epe:.2f} bad3 {bad3:.1f}%", flush=True)
             log.flush()
             net.train()
-        if done % config.checkpoint_every == 0 or done in (config.steps, config.stop_after):
+        out_of_time = config.time_budget_s is not None and time.time() - started > config.time_budget_s
+        if done % config.checkpoint_every == 0 or done in (config.steps, config.stop_after) or out_of_time:
             save_checkpoint(checkpoint_path, net, optimizer, done, elapsed, config)
+        if out_of_time:
+            print(f"time budget of {config.time_budget_s:.0f} s spent: stopped after step {done} (checkpointed)",
+                  flush=True)
+            break
     log.close()
     return checkpoint_path
 

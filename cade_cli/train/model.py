@@ -2,7 +2,7 @@
 
 Design (justified in models/README.md):
   features   2D CNN, CADE band -> 32 channels at 1/4 resolution;
-  cost       group-wise correlation (8 groups) over max_disp/4 disparity levels;
+  cost       group-wise correlation (8 groups) over levels/4 disparities of the 1/4 level;
   aggregate  3D CNN with one stride-2 hourglass, 8-16 channels;
   regress    soft-argmin over the levels (x4 to full-resolution pixels), plus the
              standard deviation of that distribution as an uncertainty;
@@ -127,11 +127,13 @@ class CadeNet(nn.Module):
     """Stereo network on color-agnostic bands.
 
     No weight depends on the searched range (the 3D convolutions slide along disparity),
-    so one trained state dict can be loaded into nets of several ``max_disp``.
+    so one trained state dict can be loaded into nets of several widths.
 
     Args:
-        max_disp: disparities searched at full resolution are 0 .. max_disp - 4 in steps
-            of 4 at the 1/4 level (max_disp must be a multiple of 8).
+        levels: width of the searched range in full-resolution px (a multiple of 8): the
+            cost volume holds ``levels // 4`` disparities of the 1/4 level, i.e. 0 ..
+            ``levels - 4`` px in steps of 4; the soft-argmin and the refinement reach
+            ``levels - 1`` at most (the model card's ``levels``).
         padding: the 2D convolutions' padding mode. ``"zeros"`` (cade-v4 on) lets
             onnxruntime fuse the padding into each convolution and keep its blocked
             layout; ``"replicate"`` (cade-v1 … v3) costs a Pad node and layout
@@ -141,13 +143,13 @@ class CadeNet(nn.Module):
             multiply-adds).
     """
 
-    def __init__(self, max_disp: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
+    def __init__(self, levels: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
                  refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1):
         super().__init__()
-        if max_disp % DIVISOR:
-            raise ValueError(f"max_disp must be a multiple of {DIVISOR}, got {max_disp}")
-        self.max_disp, self.groups = max_disp, groups
-        self.levels = max_disp // 4
+        if levels % DIVISOR:
+            raise ValueError(f"levels must be a multiple of {DIVISOR}, got {levels}")
+        self.levels, self.groups = levels, groups
+        self.coarse_levels = levels // 4
         self.design = {"padding": padding, "entry_kernel": entry_kernel}
         self.features = FeatureNet(features, padding)
         self.aggregation = Aggregation(groups, channels3d, entry_kernel)
@@ -159,9 +161,9 @@ class CadeNet(nn.Module):
         (B, 1, H, W) px."""
         both = self.features(torch.cat([left, right], dim=0))
         feat_left, feat_right = both.chunk(2, dim=0)
-        logits = self.aggregation(groupwise_correlation(feat_left, feat_right, self.levels, self.groups))
+        logits = self.aggregation(groupwise_correlation(feat_left, feat_right, self.coarse_levels, self.groups))
         probability = torch.softmax(logits, dim=1)
-        levels = torch.arange(self.levels, dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
+        levels = torch.arange(self.coarse_levels, dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
         mean = (probability * levels).sum(dim=1, keepdim=True)
         variance = (probability * (levels - mean) ** 2).sum(dim=1, keepdim=True)
         size = left.shape[-2:]

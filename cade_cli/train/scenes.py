@@ -320,17 +320,17 @@ def render_scene(
     height: int,
     width: int,
     *,
-    max_disp: float,
+    limit: float,
     textures: TexturePool,
     objects: tuple[int, int] = (3, 15),
     photometric: Photometric = Photometric(),
     misalignment: Misalignment = NO_MISALIGNMENT,
 ) -> StereoScene:
-    """Render one stereo pair with disparity in [0, max_disp).
+    """Render one stereo pair with disparity in [0, limit).
 
     Args:
         height, width: size of each view.
-        max_disp: exclusive upper bound of every disparity in the scene.
+        limit: exclusive upper bound of every disparity in the scene, px.
         textures: where layer textures come from.
         objects: inclusive-exclusive range for the number of objects before the background.
         photometric: ranges of the per-view gain (per channel), gamma, blur and noise.
@@ -340,13 +340,13 @@ def render_scene(
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
-    background_high = max_disp * (0.5 if rng.random() < 0.7 else 0.95)
+    background_high = limit * (0.5 if rng.random() < 0.7 else 0.95)
     layers = [Layer(_plane(rng, height, width, 0.0, background_high), None, *_textured(rng, textures, height, width))]
     corners = layers[0].disparity(np.array([0.0, width, 0.0, width]), np.array([0.0, 0.0, height, height]))
     farthest_background = float(corners.min())
     for _ in range(rng.integers(*objects)):
         low = farthest_background if rng.random() < 0.8 else 0.0
-        layers.append(Layer(_plane(rng, height, width, low, max_disp * 0.995),
+        layers.append(Layer(_plane(rng, height, width, low, limit * 0.995),
                             random_shape(rng, height, width), *_textured(rng, textures, height, width)))
 
     left, disparity, left_index = _composite(layers, [x] * len(layers), y)
@@ -359,8 +359,8 @@ def render_scene(
     seen = np.zeros((height, width), bool)
     seen[inside] = right_index[rows[inside], right_x[inside]] == left_index[inside]
     return StereoScene(
-        left=_camera(rng, left, photometric),
-        right=_camera(rng, right, photometric),
+        left=camera(rng, left, photometric),
+        right=camera(rng, right, photometric),
         disparity=disparity.astype(np.float32),
         nonoccluded=seen,
     )
@@ -377,7 +377,10 @@ def _textured(rng: np.random.Generator, textures: TexturePool, height: int, widt
     return texture, _mapping(rng, texture, height, width)
 
 
-def _camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometric) -> np.ndarray:
+def camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometric) -> np.ndarray:
+    """One view as a camera behind its own filter stores it: (H, W, 3) float32 in [0, 1],
+    with a per-channel gain, a gamma, blur, noise and (sometimes) 8-bit quantisation drawn
+    from ``photometric``."""
     gain = rng.uniform(*photometric.gain, size=3).astype(np.float32)
     gamma = rng.uniform(*photometric.gamma)
     sigma = rng.uniform(*photometric.blur_sigma)

@@ -1,4 +1,4 @@
-"""Tables of a :class:`~cade_cli.benchmark.BenchmarkRun`, shaped like the paper's Table 1.
+"""Tables of a :class:`~cade_cli.evaluation.loop.BenchmarkRun`, shaped like the paper's Table 1.
 
 Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol, one table per
 pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask).
@@ -7,7 +7,7 @@ The same rows feed the terminal table and the Markdown report.
 
 from __future__ import annotations
 
-from cade_cli.benchmark import BenchmarkRun
+from cade_cli.evaluation.loop import BenchmarkRun
 
 COLUMNS: tuple[tuple[str, str], ...] = (("epe", "EPE"), ("bad3", "BMP3"), ("bad5", "BMP5"))
 PIXEL_SETS: tuple[str, ...] = ("all", "nonocc")
@@ -58,15 +58,15 @@ def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
         lines += [f"Command: `{command}`", ""]
     for pixels in pixel_sets(run):
         header, rows = table(run, pixels)
-        lines += [f"## {title(run, pixels)}", "", _md_row(header), _md_row(["---"] + ["---:"] * (len(header) - 1))]
-        lines += [_md_row(row) for row in rows] + [""]
+        lines += [f"## {title(run, pixels)}", "", markdown_row(header), markdown_row(["---"] + ["---:"] * (len(header) - 1))]
+        lines += [markdown_row(row) for row in rows] + [""]
     lines += ["## Per scene and task", "",
-              _md_row(["scene", "protocol", "task", "method", "EPE all", "BMP3 all", "EPE nonocc", "BMP3 nonocc",
+              markdown_row(["scene", "protocol", "task", "method", "EPE all", "BMP3 all", "EPE nonocc", "BMP3 nonocc",
                        "invalid %", "s"]),
-              _md_row(["---"] * 4 + ["---:"] * 6)]
+              markdown_row(["---"] * 4 + ["---:"] * 6)]
     for r in run.records:
         s = r.scores
-        lines.append(_md_row([
+        lines.append(markdown_row([
             r.scene, r.protocol, r.task, f"{r.method} + {r.preprocess}",
             *(_fmt(s.get(key)) for key in ("epe_all", "bad3_all", "epe_nonocc", "bad3_nonocc", "invalid")),
             f"{r.seconds:.2f}",
@@ -78,5 +78,6 @@ def _fmt(value: float | None) -> str:
     return "—" if value is None else f"{value:.2f}"
 
 
-def _md_row(cells: list[str]) -> str:
+def markdown_row(cells: list[str]) -> str:
+    """One Markdown table row: ``| a | b |``."""
     return "| " + " | ".join(cells) + " |"

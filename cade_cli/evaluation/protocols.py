@@ -10,20 +10,26 @@ A protocol turns one RGB stereo pair into matching tasks on single bands:
   luminance 0.299 R + 0.587 G + 0.114 B), one task, scored.
 
 Channel indices are 0, 1, 2 = R, G, B of (H, W, 3) images in R, G, B order
-(:func:`cade_cli.imageio.load_image`).
+(:func:`cade_cli.imageio.load_image`). Every map a protocol returns has been through the
+one fill stage, :func:`cade_cli.matching.disparity.densify`, here and nowhere else in
+the evaluation.
 """
 
 from __future__ import annotations
 
+import statistics
 import time
-from dataclasses import dataclass
+from collections.abc import Collection
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from cade_cli.errors import CadeError, lookup
+from cade_cli.evaluation.timing import Timing, measure
 from cade_cli.imageio import luminance
 from cade_cli.matching.base import DisparityResult
+from cade_cli.matching.disparity import densify
 
 CHANNEL_NAMES: tuple[str, ...] = ("R", "G", "B")
 """Letter of each channel index of an RGB image."""
@@ -75,6 +81,24 @@ class Protocol:
     tasks: tuple[Task, ...]
     combine: str | None = None
 
+    def select(self, names: Collection[str] | None) -> Protocol:
+        """This protocol restricted to the tasks called ``names`` (None: all of them).
+
+        Raises:
+            CadeError: no task of this protocol is named, or only some tasks of a
+                protocol that combines them.
+        """
+        if names is None:
+            return self
+        tasks = tuple(task for task in self.tasks if task.name in names)
+        if not tasks:
+            raise CadeError(f"none of the tasks {', '.join(names)} is part of protocol {self.name} "
+                            f"({', '.join(t.name for t in self.tasks)}); drop the protocol or add one of its tasks")
+        if self.combine is not None and len(tasks) != len(self.tasks):
+            raise CadeError(f"protocol {self.name} combines all of {', '.join(t.name for t in self.tasks)}; "
+                            f"select all of them or none")
+        return replace(self, tasks=tasks)
+
 
 PROTOCOLS: dict[str, Protocol] = {
     protocol.name: protocol
@@ -108,8 +132,8 @@ def median_combine(disparities: list[np.ndarray], valids: list[np.ndarray]) -> t
     """Per-pixel median of several dense disparity maps, and its validity.
 
     Args:
-        disparities: N (H, W) float maps in pixels (dense, as matchers return them:
-            the median is taken over all N values, filled ones included).
+        disparities: N (H, W) float maps in pixels, dense (densified: the median is
+            taken over all N values, filled ones included).
         valids: N (H, W) bool masks.
 
     Returns:
@@ -127,10 +151,12 @@ class TaskResult:
 
     Attributes:
         name: task name (``"R>G"``, ``"grey"``) or ``"RGB-median"``.
-        disparity: (H, W) float32 left-view disparity in pixels.
-        valid: (H, W) bool validity of ``disparity``.
-        seconds: wall time to produce this map; for ``RGB-median`` the three matcher
-            runs plus the median, so summing over all results double-counts ``rgb``.
+        disparity: (H, W) float32 left-view disparity in pixels, dense: the matcher's map
+            after :func:`~cade_cli.matching.disparity.densify` (the map that is scored).
+        valid: (H, W) bool, where the matcher trusted its (finite) estimate, before the fill.
+        seconds: wall time to produce this map (the median of the timed runs); for
+            ``RGB-median`` the three matcher runs plus the median, so summing over all
+            results double-counts ``rgb``.
         scored: True for the predictions the protocol scores (every ``cs`` task, the
             ``native`` task, only ``RGB-median`` for ``rgb``).
     """
@@ -140,6 +166,12 @@ class TaskResult:
     valid: np.ndarray
     seconds: float
     scored: bool
+
+
+def _densified(name: str, disparity: np.ndarray, valid: np.ndarray, seconds: float, scored: bool) -> TaskResult:
+    """The one place where the evaluation fills a map."""
+    valid = np.asarray(valid, bool) & np.isfinite(disparity)
+    return TaskResult(name, densify(disparity, valid), valid, seconds, scored)
 
 
 MatcherFn = Callable[[np.ndarray, np.ndarray], DisparityResult]
@@ -159,40 +191,56 @@ def _check_rgb_pair(left_rgb: np.ndarray, right_rgb: np.ndarray) -> tuple[np.nda
 
 
 def run_protocol(
-    protocol_name: str, matcher_fn: MatcherFn, left_rgb: np.ndarray, right_rgb: np.ndarray
+    protocol_name: str,
+    matcher_fn: MatcherFn,
+    left_rgb: np.ndarray,
+    right_rgb: np.ndarray,
+    *,
+    tasks: Collection[str] | None = None,
+    degrade: Callable[[np.ndarray], np.ndarray] | None = None,
+    timing: Timing = Timing(),
+    prepare: Callable[[np.ndarray, np.ndarray], None] | None = None,
 ) -> list[TaskResult]:
-    """Run every task of a protocol on one RGB stereo pair.
+    """Run the tasks of a protocol on one RGB stereo pair.
 
     Args:
         protocol_name: a key of :data:`PROTOCOLS`.
         matcher_fn: ``matcher_fn(left_band, right_band) -> DisparityResult`` on (H, W)
-            float32 bands, e.g. ``functools.partial(MATCHERS[name], max_disp=64)``.
+            float32 bands, e.g. ``functools.partial(MATCHERS[name], max_disp=64)``; its
+            disparity may be unfilled (NaN where invalid).
         left_rgb, right_rgb: (H, W, 3) images in R, G, B order, same shape.
+        tasks: run only the tasks with these names (:meth:`Protocol.select`); None: all.
+        degrade: applied to each task's RIGHT band before matching (an imperfect rig).
+        timing: warm-up and timed runs of each matcher call (:func:`measure`).
+        prepare: ``prepare(left_band, right_band)`` runs untimed before every matcher call.
 
     Returns:
         One :class:`TaskResult` per task, in the protocol's order; for a ``median``
         protocol (``rgb``) followed by ``RGB-median``, the only scored one.
     """
-    protocol = get_protocol(protocol_name)
+    protocol = get_protocol(protocol_name).select(tasks)
     left_rgb, right_rgb = _check_rgb_pair(left_rgb, right_rgb)
     scored_alone = protocol.combine is None
     results = []
     for task in protocol.tasks:
         left_band, right_band = task.bands(left_rgb, right_rgb)
-        start = time.perf_counter()
-        output = matcher_fn(left_band, right_band)
-        seconds = time.perf_counter() - start
+        if degrade is not None:
+            right_band = np.asarray(degrade(right_band), np.float32)
+        seconds, output = measure(
+            lambda: matcher_fn(left_band, right_band), warmup=timing.warmup, repeat=timing.repeat,
+            prepare=None if prepare is None else lambda: prepare(left_band, right_band))
         if np.shape(output.disparity) != left_band.shape or np.shape(output.valid) != left_band.shape:
             raise CadeError(
                 f"task {task.name}: matcher returned disparity {np.shape(output.disparity)} and valid "
                 f"{np.shape(output.valid)} for bands of shape {left_band.shape}"
             )
-        results.append(TaskResult(task.name, output.disparity, output.valid, seconds, scored_alone))
+        results.append(_densified(task.name, output.disparity, output.valid, statistics.median(seconds),
+                                  scored_alone))
     if protocol.combine == "median":
         start = time.perf_counter()
         median, valid = median_combine([r.disparity for r in results], [r.valid for r in results])
         seconds = sum(r.seconds for r in results) + time.perf_counter() - start
-        results.append(TaskResult(MEDIAN_NAME, median, valid, seconds, scored=True))
+        results.append(_densified(MEDIAN_NAME, median, valid, seconds, scored=True))
     elif protocol.combine is not None:
         raise CadeError(f"protocol {protocol.name!r} has unknown combine {protocol.combine!r}")
     return results

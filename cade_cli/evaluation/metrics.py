@@ -1,4 +1,4 @@
-"""Disparity error metrics, scored the Middlebury way.
+"""Disparity error metrics, scored the Middlebury way; one definition of each.
 
 Conventions (see ``shared/data/README.md``):
 
@@ -6,9 +6,10 @@ Conventions (see ``shared/data/README.md``):
   unknown pixels with NaN (or +-inf) in memory -- readers convert a format's own marker
   (0 in PNG, inf in PFM) once, where the file is read. Every metric scores only pixels
   whose GT is finite, intersected with the caller's mask.
-* Predictions are scored *dense* (MiddEval3): pixels the matcher rejected are first
-  filled from the background side along their row (:func:`densify`), and the fraction
-  that had to be filled is reported beside the errors (``"invalid"``).
+* Predictions are scored *dense* (MiddEval3). The metrics never fill: a matcher's
+  unfilled map goes through the one fill stage,
+  :func:`cade_cli.matching.disparity.densify`, first (the protocols do that for every
+  map they return), and a NaN left at a scored pixel is an error.
 * Regions: ``all`` = every pixel with finite GT; ``nonocc`` = those that the dataset's
   occlusion mask marks non-occluded (MiddEval3: ``mask0nocc.png == 255``).
 """
@@ -18,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching.disparity import fill_invalid_along_rows
 
 BAD_THRESHOLDS: tuple[float, ...] = (1.0, 2.0, 3.0, 5.0)
 """Thresholds tau in pixels of the bad-pixel rates ``bad<tau>`` (|d - d_gt| > tau)."""
@@ -53,18 +53,23 @@ def _check_same_shape(**arrays: np.ndarray) -> None:
             )
 
 
+def _check_bool(name: str, mask: np.ndarray) -> None:
+    if mask.dtype != bool:
+        raise CadeError(f"{name} must be a bool mask, got dtype {mask.dtype}; compare it, e.g. mask == 255")
+
+
 def _scored_errors(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """|pred - gt| (float64, 1-D) over ``valid & isfinite(gt)``; checks inputs."""
     pred, gt, valid = np.asarray(pred), np.asarray(gt), np.asarray(valid)
     _check_same_shape(pred=pred, gt=gt, valid=valid)
-    if valid.dtype != bool:
-        raise CadeError(f"valid must be a bool mask, got dtype {valid.dtype}; compare it, e.g. mask == 255")
+    _check_bool("valid", valid)
     scored = valid & np.isfinite(gt)
     errors = np.abs(pred[scored].astype(np.float64) - gt[scored].astype(np.float64))
     if not np.isfinite(errors).all():
         count = int((~np.isfinite(errors)).sum())
         raise CadeError(
-            f"prediction is NaN or infinite at {count} scored pixels; densify() it before scoring"
+            f"prediction is NaN or infinite at {count} scored pixels; fill it with "
+            f"cade_cli.matching.densify(disparity, valid) before scoring"
         )
     return errors
 
@@ -107,31 +112,14 @@ def bad_pixel_rate(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, *, thres
     return float(100.0 * np.count_nonzero(errors > threshold) / errors.size) if errors.size else float("nan")
 
 
-def densify(pred: np.ndarray, valid_pred: np.ndarray) -> tuple[np.ndarray, float]:
-    """Dense copy of a prediction, for scoring, and the fraction that had to be filled.
-
-    Pixels where ``valid_pred`` is False or ``pred`` is not finite are invalid; they
-    take the background-side (smaller) of the nearest valid values on their row
-    (:func:`~cade_cli.matching.disparity.fill_invalid_along_rows`, as MiddEval3). If no
-    pixel at all is valid, the map is all zeros (scores then show how bad that is).
-
-    Args:
-        pred: (H, W) float predicted disparity in pixels.
-        valid_pred: (H, W) bool, True where the matcher trusts its estimate.
-
-    Returns:
-        (dense, invalid_fraction): (H, W) float32 finite map (``pred`` is not modified),
-        and the fraction in [0, 1] of pixels that were invalid (0 for an empty map).
-    """
-    pred, valid_pred = np.asarray(pred), np.asarray(valid_pred)
-    _check_same_shape(pred=pred, valid_pred=valid_pred)
-    if valid_pred.dtype != bool:
-        raise CadeError(f"valid_pred must be a bool mask, got dtype {valid_pred.dtype}")
-    valid = valid_pred & np.isfinite(pred)
-    invalid_fraction = float(1.0 - valid.mean()) if valid.size else 0.0
-    if not valid.any():
-        return np.zeros(pred.shape, np.float32), invalid_fraction
-    return fill_invalid_along_rows(np.where(valid, pred, 0.0), valid), invalid_fraction
+def invalid_percentage(pred: np.ndarray, pred_valid: np.ndarray) -> float:
+    """Percentage in [0, 100] of the image's pixels that the matcher rejected
+    (``~pred_valid``) or left non-finite; 0 for an empty map."""
+    pred, pred_valid = np.asarray(pred), np.asarray(pred_valid)
+    _check_same_shape(pred=pred, pred_valid=pred_valid)
+    _check_bool("pred_valid", pred_valid)
+    valid = pred_valid & np.isfinite(pred)
+    return float(100.0 * (1.0 - valid.mean())) if valid.size else 0.0
 
 
 def score(
@@ -140,46 +128,37 @@ def score(
     *,
     nonocc: np.ndarray | None = None,
     pred_valid: np.ndarray | None = None,
-    max_disp: float | None = None,
-    clip: bool = False,
 ) -> dict[str, float]:
-    """All metrics of one prediction against its GT, keyed as in :data:`METRIC_NAMES`.
-
-    The prediction is made dense with :func:`densify` (invalid = ``~pred_valid`` or
-    non-finite), then, only when ``clip`` is set, clipped to [0, ``max_disp``] (as the
-    official MiddEval3 evaluation clips to [0, ndisp]); by default it is not clipped
-    and ``max_disp`` is unused. The caller's arrays are not modified.
+    """All metrics of one dense prediction against its GT, keyed as in :data:`METRIC_NAMES`.
 
     Args:
-        pred: (H, W) float predicted disparity in pixels.
+        pred: (H, W) float predicted disparity in pixels, dense (finite wherever GT is):
+            a matcher's map after :func:`cade_cli.matching.disparity.densify`.
         gt: (H, W) float GT disparity in pixels; NaN / inf = unknown (not scored).
         nonocc: (H, W) bool, True = non-occluded; adds the ``*_nonocc`` keys.
-        pred_valid: (H, W) bool validity of ``pred``; None = every finite pixel valid.
-        max_disp: upper clipping bound in pixels (the dataset's ndisp), used with ``clip``.
-        clip: clip the dense prediction to [0, max_disp] before scoring.
+        pred_valid: (H, W) bool, the matcher's own validity (before the fill); None =
+            every finite pixel valid. Only ``invalid`` depends on it.
 
     Returns:
         ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` (%), the same with ``_nonocc``
         when ``nonocc`` is given, and ``invalid``: percentage of *all* image pixels that
-        were invalid in the prediction and filled. Keys follow :data:`METRIC_NAMES` order.
-        Errors are NaN when a region has no pixel with finite GT.
+        the matcher rejected (:func:`invalid_percentage`). Keys follow :data:`METRIC_NAMES`
+        order. Errors are NaN when a region has no pixel with finite GT.
+
+    Raises:
+        CadeError: shapes differ, a mask is not bool, ``pred`` is not finite at a pixel
+            with GT.
     """
     pred = np.asarray(pred)
     if pred_valid is None:
         pred_valid = np.ones(pred.shape, bool)
-    _check_same_shape(pred=pred, gt=np.asarray(gt), pred_valid=np.asarray(pred_valid))
-    dense, invalid_fraction = densify(pred, pred_valid)
-    if clip:
-        if max_disp is None:
-            raise CadeError("clip=True needs max_disp (the dataset's ndisp in pixels)")
-        dense = np.clip(dense, 0.0, max_disp)
-    regions = {"all": np.ones(dense.shape, bool)}
+    regions = {"all": np.ones(pred.shape, bool)}
     if nonocc is not None:
         regions["nonocc"] = np.asarray(nonocc)
     results: dict[str, float] = {}
     for region, mask in regions.items():
-        results[f"epe_{region}"] = end_point_error(dense, gt, mask)
+        results[f"epe_{region}"] = end_point_error(pred, gt, mask)
         for threshold in BAD_THRESHOLDS:
-            results[f"{_bad_name(threshold)}_{region}"] = bad_pixel_rate(dense, gt, mask, threshold=threshold)
-    results["invalid"] = 100.0 * invalid_fraction
+            results[f"{_bad_name(threshold)}_{region}"] = bad_pixel_rate(pred, gt, mask, threshold=threshold)
+    results["invalid"] = invalid_percentage(pred, np.asarray(pred_valid))
     return {name: results[name] for name in METRIC_NAMES if name in results}

@@ -1,0 +1,179 @@
+"""The network stage of the CADE matcher: the shipped ONNX network run with onnxruntime.
+
+The network (trained by :mod:`cade_cli.train`, never imported here) takes the CADE
+transforms (color-agnostic bands) of the two views, with sides that are multiples of its
+divisor, and searches disparities 0 .. ``levels`` - 1 of the variant it was exported
+with (:mod:`cade_cli.model_card`). Around it :class:`NetworkStage`:
+
+* pre-shifts the right band by the requested minimum disparity, so any range
+  [min, max] (negative minimum included) becomes [0, max - min];
+* runs the narrowest variant that searches that span at full resolution; when even the
+  widest cannot, runs it on a downscaled pair (factor 2, 4, ...) and upsamples,
+  rescaling disparity (:func:`pyramid_factor`);
+* pads to the divisor (replicating the border, :func:`pad_to_divisor`) and crops back;
+* splits tall images into overlapping horizontal strips (:func:`strips`), so memory
+  stays bounded (disparity is horizontal: a strip holds everything its rows need).
+
+The network's ``uncertainty`` output (spread of its disparity distribution) is not used
+for validity: rejecting pixels above 3 px and filling them from the background replaced
+many good estimates on thin and slanted structures (models/README.md, "Validity").
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cade_cli.checksum import file_sha256
+from cade_cli.errors import CadeError
+from cade_cli.matching.base import DisparityRange
+from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
+from cade_cli.spectral import color_agnostic
+
+STRIP_PIXELS = 1_500_000
+"""Largest padded strip (pixels) given to the network at once; bounds memory (the cost
+volume grows with the variant's levels: about 1 GB at 128, 2.3 GB at 256)."""
+STRIP_OVERLAP = 32
+"""Rows shared by neighbouring strips; each keeps the half nearer its own centre."""
+RANGE_MARGIN = 8
+"""A variant's top levels are kept free: spans (max - min) up to ``levels - RANGE_MARGIN`` px
+run at full size."""
+ALLOW_SPINNING = "session.intra_op.allow_spinning"
+"""onnxruntime's session option that lets its threads busy-wait for work after a run; off here."""
+
+
+def searchable_span(variant: ModelVariant) -> int:
+    """Largest disparity span (max - min, px) the variant searches at full resolution."""
+    return variant.levels - RANGE_MARGIN
+
+
+def pyramid_factor(span: int, searchable: int) -> int:
+    """Smallest power of two that brings a disparity ``span`` (px) within ``searchable`` (px)."""
+    factor = 1
+    while span / factor > searchable:
+        factor *= 2
+    return factor
+
+
+def choose_variant(card: ModelCard, span: int) -> tuple[ModelVariant, int]:
+    """The variant and pyramid factor for a disparity ``span`` (max - min, px): the least
+    downscaling first, then the narrowest search (the fastest, and the range it was trained on)."""
+    def factor(variant: ModelVariant) -> int:
+        return pyramid_factor(span, searchable_span(variant))
+
+    best = min(card.variants, key=lambda variant: (factor(variant), variant.levels))
+    return best, factor(best)
+
+
+@functools.lru_cache(maxsize=4)
+def onnx_session(path: Path, sha256: str):
+    """One onnxruntime session per model file, built once after checking its sha256."""
+    if not path.is_file():
+        raise CadeError(f"model file {path} not found; set {MODEL_DIR_ENV} to the folder holding it")
+    digest = file_sha256(path)
+    if digest != sha256:
+        raise CadeError(f"model file {path} has sha256 {digest[:12]}..., its card says {sha256[:12]}...; "
+                        f"the file is damaged or not the one the card describes")
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.log_severity_level = 3
+    options.intra_op_num_threads = int(os.environ.get("OMP_NUM_THREADS") or 0)  # 0: one per physical core
+    # The matcher hands the cores to OpenCV (refinement) right after each run; spinning
+    # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
+    options.add_session_config_entry(ALLOW_SPINNING, "0")
+    return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+
+
+def shift_right_view(right: np.ndarray, shift: int) -> np.ndarray:
+    """``out(y, x) = right(y, x - shift)``, border columns replicated.
+
+    Matching left against ``out`` finds d - shift where matching against ``right`` finds d."""
+    if shift == 0:
+        return right
+    width = right.shape[1]
+    columns = np.clip(np.arange(width) - shift, 0, width - 1)
+    return np.ascontiguousarray(right[:, columns])
+
+
+def pad_to_divisor(band: np.ndarray, divisor: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """``band`` (H, W) padded at the bottom and right, edges replicated, to multiples of
+    ``divisor``; returns the padded float32 array and (H, W) to crop back to. The runtime
+    and the training validation both pad with this."""
+    height, width = band.shape
+    padded = np.pad(band, ((0, -height % divisor), (0, -width % divisor)), mode="edge")
+    return padded.astype(np.float32, copy=False), (height, width)
+
+
+def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: int = STRIP_OVERLAP,
+           divisor: int = 8) -> list[tuple[int, int, int, int]]:
+    """Row bands ``(start, stop, keep_start, keep_stop)`` covering ``height`` rows.
+
+    Each band [start, stop) has at most ``max_pixels`` pixels (at least ``4 * overlap``
+    rows); [keep_start, keep_stop) are the rows it contributes to the output. The kept
+    rows tile [0, height) exactly."""
+    rows = max(4 * overlap, (max_pixels // max(width, 1)) // divisor * divisor)
+    if rows >= height:
+        return [(0, height, 0, height)]
+    step = rows - overlap
+    bands, start = [], 0
+    while True:
+        stop = min(start + rows, height)
+        start = max(0, stop - rows)
+        keep_start = 0 if start == 0 else start + overlap // 2
+        bands.append((start, stop, keep_start, stop))
+        if stop == height:
+            break
+        start += step
+    # Trim each band's kept rows where the next band starts keeping.
+    return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
+
+
+def run_network(session, divisor: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """The network's (H, W) float32 disparity (px, 0 .. levels - 1) for color-agnostic
+    bands of any size: strips, padding, cropping."""
+    height, width = left.shape
+    disparity = np.empty((height, width), np.float32)
+    padded_width = width + (-width % divisor)
+    for start, stop, keep_start, keep_stop in strips(height, padded_width, max_pixels=STRIP_PIXELS, divisor=divisor):
+        inputs = {name: pad_to_divisor(band[start:stop], divisor)[0][None, None]
+                  for name, band in (("left", left), ("right", right))}
+        (out,) = session.run(["disparity"], inputs)
+        disparity[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start, :width]
+    return disparity
+
+
+@dataclass(frozen=True)
+class NetworkStage:
+    """Raw bands and a range -> the network's disparity of the left view at full resolution.
+
+    Attributes:
+        model: a card name in :func:`cade_cli.model_card.model_dir` (``cade-v4``) or the
+            path of a card (``.json``), whose variants lie beside it.
+    """
+
+    model: str = DEFAULT_MODEL
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> np.ndarray:
+        """(H, W) float32 disparity in px, clipped to ``disparity_range``, of the raw bands
+        ``left`` against ``right`` (the network sees their CADE transforms)."""
+        card = read_card(self.model)
+        variant, factor = choose_variant(card, disparity_range.span)
+        session = onnx_session(variant.path, variant.sha256)
+        height, width = left.shape
+        minimum = disparity_range.minimum
+        left_band, right_band = color_agnostic(left), color_agnostic(shift_right_view(right, minimum))
+        if factor > 1:
+            size = (max(1, round(width / factor)), max(1, round(height / factor)))
+            left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)
+                                     for band in (left_band, right_band))
+        network = run_network(session, card.divisor, left_band, right_band)
+        if factor > 1:
+            network = cv2.resize(network, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
+                width / left_band.shape[1])
+        return np.clip(network + minimum, minimum, disparity_range.maximum)

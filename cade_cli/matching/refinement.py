@@ -1,0 +1,187 @@
+"""The refinement stage of the CADE matcher: semi-global matching of the raw bands' ranks.
+
+The network works at 1/4 resolution on color-agnostic bands: robust across bands, but
+blurred at edges, in fine texture and on thin structures (branches, cables), which it can
+miss by tens of pixels. :class:`RankSgbmRefinement` matches the full-resolution bands
+again, over the whole range, with OpenCV's SGBM (built by the same
+:func:`~cade_cli.matching.classical.sgbm_matcher` as the ``sgbm`` matcher) on their rank
+transforms, and lets the result overrule the network where it is trustworthy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.classical import sgbm_matcher
+from cade_cli.matching.cost import rank_transform
+from cade_cli.matching.network import shift_right_view
+
+SIGN_BLUR = 31
+"""Side of the box blur applied to both bands before their correlation decides whether
+one is the other's contrast-inverted version."""
+SIGN_STEP = 4
+"""That correlation reads every 4th row and column of the blurred bands."""
+REGION_SIDE = 127
+"""Side (px) of the windows in which :func:`inverted_regions` correlates the bands."""
+REGION_CORRELATION = -0.4
+"""A window whose correlation lies below this, against the image-wide relation, is inverted."""
+REGION_SHARE = 0.15
+"""Inverted windows count only when they cover at least this share of the image."""
+REGION_EDGE = 63
+"""Once regions count, each pixel is judged in windows of this side (px), by its sign."""
+
+
+def correlation(left: np.ndarray, right: np.ndarray) -> float:
+    """Pearson correlation of two images' pixels (0 where either is constant).
+
+    Sums, not ``np.dot``: a BLAS call leaves OpenBLAS's threads busy-waiting for the next
+    one, on the cores onnxruntime and OpenCV need next (models/README.md, session 9)."""
+    left, right = (image.astype(np.float64).ravel() for image in (left, right))
+    left, right = left - left.mean(), right - right.mean()
+    norm = np.sqrt(np.sum(left * left) * np.sum(right * right))
+    return float(np.sum(left * right) / norm) if norm > 0 else 0.0
+
+
+def _sign_samples(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The 31x31-blurred bands on every ``SIGN_STEP``-th row and column of the left
+    view: the left band there, and the right band at the matches ``disparity`` gives."""
+    step = np.s_[::SIGN_STEP, ::SIGN_STEP]
+    height, width = left.shape
+    rows, columns = np.mgrid[0:height:SIGN_STEP, 0:width:SIGN_STEP].astype(np.float32)
+    blurred_left, blurred_right = (cv2.blur(band.astype(np.float32), (SIGN_BLUR, SIGN_BLUR))
+                                   for band in (left, right))
+    matched = cv2.remap(blurred_right, columns - np.rint(disparity[step]), rows,
+                        cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    return blurred_left[step], matched
+
+
+def windowed_correlation(first: np.ndarray, second: np.ndarray, side: int) -> np.ndarray:
+    """Pearson correlation of two sample grids (every ``SIGN_STEP``-th pixel) in
+    windows of ``side`` image pixels around each sample."""
+    window = (side // SIGN_STEP) | 1
+
+    def mean(image: np.ndarray) -> np.ndarray:
+        return cv2.blur(image, (window, window), borderType=cv2.BORDER_REFLECT)
+
+    first_mean, second_mean = mean(first), mean(second)
+    covariance = mean(first * second) - first_mean * second_mean
+    variances = (mean(first * first) - first_mean**2) * (mean(second * second) - second_mean**2)
+    return covariance / np.sqrt(np.maximum(variances, np.float32(1e-12)))
+
+
+def inverted_regions(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """Left-view pixels where ``right`` is a contrast-inverted version of ``left``.
+
+    First image-wide: a negative correlation of the 31x31-blurred bands along the matches
+    ``disparity`` gives (judged on blurred bands, so the sign holds where ``disparity`` is
+    many pixels off; every ``SIGN_STEP``-th row and column is enough after that
+    blur) flips every pixel. Then by region: the same samples are correlated in windows of
+    ``REGION_SIDE`` px; where that correlation opposes the image-wide relation by more
+    than ``REGION_CORRELATION`` (e.g. vegetation, bright in NIR and dark in red,
+    over part of the view) on at least ``REGION_SHARE`` of the image, the pixels
+    whose ``REGION_EDGE``-px windows oppose it at all flip too. On the benchmark
+    pairs (Middlebury, FlyingThings3D, KITTI) the strongly opposed windows cover at most
+    about 10 %, so there only the image-wide relation counts.
+
+    Returns:
+        (H, W) bool.
+    """
+    height, width = left.shape
+    blurred_left, matched = _sign_samples(left, right, disparity)
+    inverted = correlation(blurred_left, matched) < 0
+    sign = np.float32(-1 if inverted else 1)  # local correlations relative to the image-wide relation
+    strongly_opposed = sign * windowed_correlation(blurred_left, matched, REGION_SIDE) < REGION_CORRELATION
+    if strongly_opposed.mean() < REGION_SHARE:
+        return np.full((height, width), inverted)
+    opposed = sign * windowed_correlation(blurred_left, matched, REGION_EDGE) < 0
+    samples = (opposed ^ inverted).astype(np.uint8)
+    return cv2.resize(samples, (width, height), interpolation=cv2.INTER_NEAREST).astype(bool)
+
+
+@dataclass(frozen=True)
+class RankSgbmRefinement:
+    """Correct the network's disparity by semi-global matching of the raw bands:
+
+    1. both bands become rank images (:func:`~cade_cli.matching.cost.rank_transform`,
+       ``rank_window`` x ``rank_window``): they depend only on the order of intensities, so
+       a gain, offset or gamma change between bands does not alter them, and fine texture
+       is kept; where the bands are anti-correlated along the network's matches
+       (:func:`inverted_regions`: over the whole image, as for a filter pair that inverts
+       contrast, or over large regions of it), the left ranks are flipped (48 - rank). A
+       smaller inverted patch is not flipped; there the ranks disagree and step 3 leaves
+       most of it to the network;
+    2. OpenCV's StereoSGBM (3-way mode, ``block`` x ``block`` blocks) searches the whole
+       range on that pair, with sub-pixel output;
+    3. its value replaces the network's where SGBM accepted the match and it lies within
+       ``agreement`` px of the network's; elsewhere the network's value is kept: SGBM
+       rejects a match whose runner-up is within ``uniqueness`` % of the best cost, a
+       speckle (a patch under 100 px that differs by more than 2 px from its
+       surroundings), and a match outside the right image is refused too. Where the bands
+       are unrelated (e.g. the R and G planes of random colour textures) the ranks
+       disagree, and these rejections and the agreement bound leave the network in charge.
+
+    Attributes:
+        agreement: largest accepted difference (px) between the network and the match.
+        rank_window: side of the rank transform's window.
+        block, p1, p2: SGBM block side and smoothness penalties per pixel of the block
+            (OpenCV's usual 8 and 32, with a stiffer P2).
+        uniqueness: SGBM's uniqueness ratio, %.
+    """
+
+    agreement: float = 32
+    rank_window: int = 7
+    block: int = 5
+    p1: int = 8
+    p2: int = 64
+    uniqueness: int = 10
+
+    def __call__(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                 disparity_range: DisparityRange) -> np.ndarray:
+        """Refined (H, W) float32 disparity, px, of the raw bands ``left`` / ``right`` (any
+        units; only their order matters) from the network's ``disparity`` (px, within
+        ``disparity_range``); a non-zero minimum is handled by shifting the right band."""
+        minimum = disparity_range.minimum
+        refined = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum, disparity_range.span)
+        return refined + minimum if minimum else refined
+
+    def refine_span(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray, span: int) -> np.ndarray:
+        """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range)."""
+        if span < 1:
+            return np.asarray(disparity, np.float32)  # a single disparity: nothing to choose between
+        matched, accepted = self.candidate(left, right, disparity, span)
+        accepted &= np.abs(matched - disparity) <= self.agreement
+        return np.where(accepted, matched, disparity).astype(np.float32)
+
+    def candidate(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                  span: int) -> tuple[np.ndarray, np.ndarray]:
+        """Steps 1-2: SGBM's (H, W) float32 match of the rank images over 0 .. ``span`` px
+        (``span`` >= 1), and where SGBM accepted it and it lies inside the right image (the
+        agreement with ``disparity`` is not applied here)."""
+        width = left.shape[1]
+        top = self.rank_window**2 - 1
+        left_rank, right_rank = (rank_transform(band, window=self.rank_window) for band in (left, right))
+        # The left ranks are flipped, where the regions are found. Flipping the right ones
+        # instead is not bit-identical in OpenCV's SGBM but no more accurate (contrast inverted
+        # everywhere: 5.87 px EPE against 5.86, models/README.md, session 11).
+        inverted = inverted_regions(left, right, disparity)
+        if inverted.any():
+            left_rank = np.where(inverted, np.uint8(top) - left_rank, left_rank)
+        # Ranks 0..48 spread over 0..240, so OpenCV's 8-bit cost keeps its resolution.
+        scale = np.uint8(240 // top)
+        left_rank, right_rank = left_rank * scale, right_rank * scale
+        # disp12MaxDiff asks for OpenCV's left-right check, but it changed no score and no
+        # rejection count when tried off and at 0..2 px (models/README.md, session 10): no
+        # left-right check is claimed for this step.
+        matcher = sgbm_matcher(0, span + 1, block=self.block, p1=self.p1, p2=self.p2, uniqueness=self.uniqueness,
+                               prefilter_cap=15, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+        levels = matcher.getNumDisparities()
+        # OpenCV leaves the first ``levels`` columns unmatched: pad, so that happens outside the image.
+        left_rank, right_rank = (cv2.copyMakeBorder(image, 0, 0, levels, 0, cv2.BORDER_REPLICATE)
+                                 for image in (left_rank, right_rank))
+        matched = matcher.compute(left_rank, right_rank)[:, levels:].astype(np.float32) / np.float32(16)
+        accepted = (matched >= 0) & (matched <= np.arange(width, dtype=np.float32)[None, :])  # rejects are -1
+        return matched, accepted

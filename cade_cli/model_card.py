@@ -1,0 +1,94 @@
+"""The model card: what `cade_cli.train` export writes beside its ONNX files and what the
+runtime (:mod:`cade_cli.matching.network`) reads. No torch and no onnxruntime here.
+
+A card is a JSON file ``<name>.json`` in the model folder::
+
+    {"format": 2, "name": "cade-v4", "divisor": 8, "trained_levels": 128,
+     "variants": [{"levels": 96, "file": "cade-v4-96.onnx", "sha256": "..."}, ...],
+     ... free descriptive fields (architecture, training command, figures) ...}
+
+Each variant is the same weights exported with another search width: ``levels`` is the
+number of disparities the network's cost volume spans, so it searches
+0 .. ``levels`` - 1 px (inclusive bound ``levels - 1``). Only ``format``, ``divisor`` and
+``variants`` are read back; the other fields document the model.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from cade_cli.errors import CadeError
+
+CARD_FORMAT = 2
+"""Version of the card layout; format 1 (sessions 1-11) named ``levels`` ``max_disp``."""
+MODEL_DIR_ENV = "CADE_MODEL_DIR"
+"""Environment variable naming another folder of models and cards."""
+DEFAULT_MODEL = "cade-v4"
+
+
+def model_dir() -> Path:
+    """Where model files and cards are looked up: $CADE_MODEL_DIR, else the models/ folder
+    shipped with the package (the repository's top-level models/ in a checkout)."""
+    configured = os.environ.get(MODEL_DIR_ENV)
+    return Path(configured) if configured else Path(__file__).resolve().parents[1] / "models"
+
+
+@dataclass(frozen=True)
+class ModelVariant:
+    """One ONNX export of the weights, searching disparities 0 .. ``levels`` - 1 px."""
+
+    path: Path
+    sha256: str
+    levels: int
+
+
+@dataclass(frozen=True)
+class ModelCard:
+    """The part of a card the runtime needs."""
+
+    name: str
+    variants: tuple[ModelVariant, ...]
+    divisor: int
+
+
+def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
+    """The card of ``model``: a path to a card file (``.../cade-v6.json``), or the name of a
+    card in ``folder`` (default :func:`model_dir`)."""
+    if str(model).endswith(".json"):
+        return Path(model)
+    return (model_dir() if folder is None else Path(folder)) / f"{model}.json"
+
+
+def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> ModelCard:
+    """Load the card of ``model`` (see :func:`card_path`); variant files are looked up beside it.
+
+    Raises:
+        CadeError: the card is missing or malformed (the message names the file and the fix).
+    """
+    path = card_path(model, folder)
+    name = path.stem
+    if not path.is_file():
+        raise CadeError(f"model card {path} not found; give the path of a model's .json card, or set "
+                        f"{MODEL_DIR_ENV} to the folder holding {name}.json")
+    try:
+        card = json.loads(path.read_text())
+        if card.get("format", 1) != CARD_FORMAT:
+            raise ValueError(f"format {card.get('format', 1)}, this version reads format {CARD_FORMAT}")
+        variants = tuple(ModelVariant(path.parent / v["file"], v["sha256"], int(v["levels"]))
+                         for v in card["variants"])
+        if not variants:
+            raise ValueError("no variants")
+        return ModelCard(name, variants, int(card["divisor"]))
+    except (ValueError, KeyError, TypeError, AttributeError) as error:
+        raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
+
+
+def write_card(path: Path, *, name: str, divisor: int, trained_levels: int, variants: list[dict], **fields) -> dict:
+    """Write a card (``variants``: dicts with ``levels``, ``file``, ``sha256``); returns it."""
+    card = {"format": CARD_FORMAT, "name": name, "divisor": divisor, "trained_levels": trained_levels,
+            "variants": sorted(variants, key=lambda v: v["levels"]), **fields}
+    Path(path).write_text(json.dumps(card, indent=2) + "\n")
+    return card
