@@ -5,12 +5,12 @@ BIN := $(VENV)/bin
 SAMPLE := samples/middlebury2005-art
 OUT := out
 
-.PHONY: demo test bench-speed bench-memory train gpu-data clean
+.PHONY: demo test wheel-check bench-speed bench-memory train gpu-data clean
 
 $(BIN)/cade: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,train]'
 	touch $@
 
 demo: $(BIN)/cade
@@ -53,6 +53,17 @@ gpu-data:
 	cp -r ../shared/data/train-real .gpu-data/
 	cp -r ../shared/data/textures/CBSD68 ../shared/data/textures/Kodak24 ../shared/data/textures/skimage_cc0 .gpu-data/textures/
 	du -sh .gpu-data
+
+# A wheel built from this checkout, installed into a fresh venv outside the repo, runs the
+# default method on the bundled sample (the models travel inside the wheel). CI runs this.
+wheel-check: $(BIN)/cade
+	set -e; work=$$(mktemp -d); \
+	$(BIN)/python -m pip wheel . --no-deps --quiet -w $$work/dist; \
+	$(PYTHON) -m venv $$work/venv; \
+	$$work/venv/bin/python -m pip install --quiet $$work/dist/*.whl; \
+	cd $$work && venv/bin/cade disparity $(CURDIR)/$(SAMPLE)/left_R.png $(CURDIR)/$(SAMPLE)/right_B.png \
+		-o art.pfm --method cade --max-disp 80; \
+	rm -rf $$work
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -30,10 +30,15 @@ DEFAULT_MODEL = "cade-v4"
 
 
 def model_dir() -> Path:
-    """Where model files and cards are looked up: $CADE_MODEL_DIR, else the models/ folder
-    shipped with the package (the repository's top-level models/ in a checkout)."""
+    """Where model files and cards are looked up: $CADE_MODEL_DIR, else the models shipped
+    with the package: ``cade_cli/models`` in an installed wheel, the repository's top-level
+    ``models/`` in a checkout (an editable install)."""
     configured = os.environ.get(MODEL_DIR_ENV)
-    return Path(configured) if configured else Path(__file__).resolve().parents[1] / "models"
+    if configured:
+        return Path(configured)
+    package = Path(__file__).resolve().parent
+    installed = package / "models"
+    return installed if installed.is_dir() else package.parent / "models"
 
 
 @dataclass(frozen=True)
