@@ -40,8 +40,9 @@ def same(old: float, new: float, tolerance: float) -> bool:
     return abs(old - new) <= tolerance
 
 
-def differences(old: dict, new: dict, new_config: dict, tolerance: float) -> list[str]:
-    """One line per difference, in OLD's order then NEW's extra records."""
+def differences(old: dict, new: dict, new_config: dict, tolerance: float, *, new_metrics: bool = False) -> list[str]:
+    """One line per difference, in OLD's order then NEW's extra records; with
+    ``new_metrics`` a metric that only NEW's records carry (a score added since) is not one."""
     covered = {"scene": "scenes", "method": "methods", "protocol": "protocols", "preprocess": "preprocess"}
     lines = []
     for key, scores in old.items():
@@ -52,6 +53,8 @@ def differences(old: dict, new: dict, new_config: dict, tolerance: float) -> lis
             continue
         for metric in sorted(set(scores) | set(new[key])):
             a, b = scores.get(metric), new[key].get(metric)
+            if a is None and b is not None and new_metrics:
+                continue
             if a is None or b is None:
                 lines.append(f"{' / '.join(key)}: {metric} only in {'NEW' if a is None else 'OLD'}")
             elif not same(float(a), float(b), tolerance):
@@ -65,10 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("old", type=Path)
     parser.add_argument("new", type=Path)
     parser.add_argument("--tolerance", type=float, default=0.0, help="largest |new - old| that counts as equal")
+    parser.add_argument("--new-metrics", action="store_true",
+                        help="metrics that only NEW's records carry (scores added since OLD) are not differences")
     args = parser.parse_args(argv)
     _, old = records_by_key(args.old)
     new_config, new = records_by_key(args.new)
-    lines = differences(old, new, new_config, args.tolerance)
+    lines = differences(old, new, new_config, args.tolerance, new_metrics=args.new_metrics)
     compared = sum(key in new for key in old)
     print("\n".join(lines) if lines else "no difference")
     print(f"{compared} records compared, {len(lines)} difference(s)", file=sys.stderr)

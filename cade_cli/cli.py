@@ -113,6 +113,11 @@ def disparity(
         Optional[Path], typer.Option("--validity", help="Also write the validity mask: PNG (255 = valid, 0 = rejected) "
                                      "or TIFF (uint8 1/0).")
     ] = None,
+    confidence: Annotated[
+        Optional[Path], typer.Option("--confidence", help="Also write the matcher's confidence: float32 TIFF in [0, 1], "
+                                     "higher = more trusted, 0 = rejected; keep pixels above a threshold to mask what "
+                                     "the matcher is unsure of (README: what each method measures).")
+    ] = None,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.disparity_io import (
@@ -122,6 +127,7 @@ def disparity(
         write_validity,
         write_visualization,
     )
+    from cade_cli.atomic import atomic_outputs
     from cade_cli.errors import CadeError
     from cade_cli.matching import densify, get_matcher
     from cade_cli.stereo import estimate_disparity
@@ -129,13 +135,19 @@ def disparity(
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
-    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES)):
+    if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
+        raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
+                        f"name it .tif or .tiff")
+    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES),
+                                          ("--confidence", confidence, (".tif", ".tiff"))):
         if side_output is not None:
             _check_output(side_output, suffixes=suffixes, inputs=(left, right))
             if side_output.resolve() == output.resolve():
                 raise CadeError(f"{option} {side_output} is the same file as --output; give it another name")
     if vis is not None and validity is not None and vis.resolve() == validity.resolve():
         raise CadeError(f"--vis and --validity both name {vis}; give them different names")
+    if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
+        raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     max_disp = _resolve_max_disp(max_disp, left_image.shape[1])
@@ -146,11 +158,17 @@ def disparity(
     seconds = time.perf_counter() - started
     preprocess = get_matcher(method).resolve_preprocess(preprocess)
     dense = densify(result.disparity, result.valid)
-    write_disparity(output, dense if fill == "row" else result.disparity)
-    if vis is not None:
-        write_visualization(vis, result.disparity)
-    if validity is not None:
-        write_validity(validity, result.valid)
+    _warn_if_textureless(left, right, left_image, right_image)
+    if confidence is not None and result.confidence is None:
+        raise CadeError(f"method {method} gives no confidence; drop --confidence")
+    with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
+        write_disparity(staged[output], dense if fill == "row" else result.disparity)
+        if vis is not None:
+            write_visualization(staged[vis], result.disparity)
+        if validity is not None:
+            write_validity(staged[validity], result.valid)
+        if confidence is not None:  # a float32 TIFF, by the disparity writer (no NaN: 0 where rejected)
+            write_disparity(staged[confidence], result.confidence)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
@@ -161,6 +179,7 @@ def disparity(
 
 @app.command()
 def register(
+    context: typer.Context,
     moving: Annotated[Path, typer.Argument(help="Band to warp (right view).", show_default=False)],
     reference: Annotated[Path, typer.Argument(help="Reference band (left view).", show_default=False)],
     output: Annotated[Path, typer.Option("--output", "-o", help="Float32 TIFF: reference, registered, validity bands.")],
@@ -196,6 +215,20 @@ def register(
     _check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
     if validity_file is not None and disparity_file is None:
         raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
+    if fill not in ("row", "none"):
+        raise CadeError(f"unknown --fill {fill!r}; choose row or none")
+    if disparity_file is not None:
+        estimation = [f"--{name.replace('_', '-')}" for name in ("method", "max_disp", "min_disp", "preprocess", "model")
+                      if context.get_parameter_source(name).name != "DEFAULT"]
+        if estimation:
+            named = " and ".join([", ".join(estimation[:-1]), estimation[-1]] if len(estimation) > 1 else estimation)
+            verb, pronoun = ("apply", "them") if len(estimation) > 1 else ("applies", "it")
+            raise CadeError(f"{named} only {verb} when the disparity is estimated, but --disparity gives it; drop "
+                            f"{pronoun} or --disparity")
+    else:
+        from cade_cli.matching import get_matcher
+
+        get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
     reference_image, moving_image = _read_pair(
         reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
     )
@@ -205,7 +238,7 @@ def register(
 
         trusted = read_validity(validity_file) if validity_file is not None else None
         result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file),
-                               disparity_valid=trusted, fill=fill)
+                               disparity_valid=trusted, fill=fill, disparity_name=str(disparity_file))
         source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
     else:
         max_disp = _resolve_max_disp(max_disp, reference_image.shape[1])
@@ -216,6 +249,7 @@ def register(
         from cade_cli.matching import get_matcher
 
         source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"
+        _warn_if_textureless(reference, moving, reference_image, moving_image)
     seconds = time.perf_counter() - started
     write_registration(output, result)
     height, width = result.reference.shape
@@ -243,52 +277,57 @@ def benchmark(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from cade_cli.atomic import atomic_output
+    from cade_cli.atomic import atomic_outputs
     from cade_cli.evaluation.loop import run_benchmark
-    from cade_cli.evaluation.report import markdown, pixel_sets, table, title
+    from cade_cli.evaluation.report import confidence_table, confidence_title, markdown, pixel_sets, table, title
     from cade_cli.errors import CadeError
     from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
     for path, suffix in ((json_file, ".json"), (report, ".md")):
         if path is not None:
             _check_output(path, suffixes=(suffix,), inputs=())
-    if save_dir is not None and not save_dir.parent.is_dir():
-        raise CadeError(f"parent of --save-dir {save_dir} does not exist; create it first")
     split = lambda text: [item.strip() for item in text.split(",") if item.strip()]  # noqa: E731
+    for option, value in (("--methods", methods), ("--protocol", protocol), ("--preprocess", preprocess),
+                          ("--scenes", scenes)):
+        if value is not None and not split(value):
+            raise CadeError(f"{option} {value!r} names nothing; give comma-separated names, or leave it out for the default")
     console = Console(stderr=True)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=True) as progress:
-        bar = progress.add_task(f"benchmark {dataset}", total=None)
+    # Every output is checked before the run and staged during it; all appear at the end, or none.
+    with atomic_outputs([json_file, report], folders=[save_dir]) as staged:
+        with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
+            bar = progress.add_task(f"benchmark {dataset}", total=None)
 
-        def advance(scene: str, records: list) -> None:
-            progress.update(bar, advance=1, description=f"{dataset} {scene} done")
+            def advance(scene: str, records: list) -> None:
+                progress.update(bar, advance=1, description=f"{dataset} {scene} done")
 
-        learned = [name for name in split(methods) if name in LEARNED_METHODS]
-        if model is not None and not learned:
-            raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
-        matchers = {**MATCHERS, **{name: get_matcher(name, model=model) for name in learned}}
-        run = run_benchmark(
-            dataset=dataset, data_dir=data_dir, methods=split(methods), protocols=split(protocol),
-            preprocess=split(preprocess), scenes=split(scenes) if scenes else None, jobs=jobs,
-            save_dir=save_dir, on_scene_done=advance, matchers=matchers,
-            on_start=lambda total: progress.update(bar, total=total),
-        )
-    out = Console()
-    for pixels in pixel_sets(run):
-        header, rows = table(run, pixels)
-        rich_table = Table(title=title(run, pixels), title_justify="left")
-        for i, name in enumerate(header):
-            rich_table.add_column(name, justify="left" if i == 0 else "right", no_wrap=i == 0)
-        for row in rows:
-            rich_table.add_row(*row)
-        out.print(rich_table)
-    command = shlex.join(["cade", *sys.argv[1:]]) if sys.argv[1:2] == ["benchmark"] else None
-    if json_file is not None:
-        with atomic_output(json_file) as temporary:
-            temporary.write_text(run.to_json())
-    if report is not None:
-        with atomic_output(report) as temporary:
-            temporary.write_text(markdown(run, command=command))
+            learned = [name for name in split(methods) if name in LEARNED_METHODS]
+            if model is not None and not learned:
+                raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
+            matchers = {**MATCHERS, **{name: get_matcher(name, model=model) for name in learned}}
+            run = run_benchmark(
+                dataset=dataset, data_dir=data_dir, methods=split(methods), protocols=split(protocol),
+                preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
+                save_dir=None if save_dir is None else staged[save_dir], on_scene_done=advance, matchers=matchers,
+                on_start=lambda total: progress.update(bar, total=total),
+            )
+        out = Console()
+        tables = [(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
+        confidence = confidence_table(run)  # how well each matcher's confidence ranks its errors
+        if confidence is not None:
+            tables.append((confidence_title(run), *confidence))
+        for heading, header, rows in tables:
+            rich_table = Table(title=heading, title_justify="left")
+            for i, name in enumerate(header):
+                rich_table.add_column(name, justify="left" if i == 0 else "right", no_wrap=i == 0)
+            for row in rows:
+                rich_table.add_row(*row)
+            out.print(rich_table)
+        command = shlex.join(["cade", *sys.argv[1:]]) if sys.argv[1:2] == ["benchmark"] else None
+        if json_file is not None:
+            staged[json_file].write_text(run.to_json())
+        if report is not None:
+            staged[report].write_text(markdown(run, command=command))
 
 
 datasets_app = typer.Typer(
@@ -361,6 +400,20 @@ def _read_pair(
     return images
 
 
+def _warn_if_textureless(left: Path, right: Path, left_image, right_image) -> None:
+    """Warn when much of the pair is flat (:func:`cade_cli.stereo.textureless`): no disparity there."""
+    from cade_cli.stereo import TEXTURE_WINDOW, textureless
+
+    flat = textureless(left_image) | textureless(right_image)
+    share = float(flat.mean())
+    if share == 1.0:
+        _warn(f"{left} and {right} have no texture at all (constant images?): there is no disparity to find and "
+              "every pixel is marked invalid; check that these are the right, correctly exposed images")
+    elif share >= 0.5:
+        _warn(f"{100 * share:.0f}% of {left} / {right} is flat (one value over {TEXTURE_WINDOW}x{TEXTURE_WINDOW} px "
+              "in a band: blank, saturated or underexposed); disparity there is marked invalid")
+
+
 def _resolve_max_disp(max_disp: int | None, width: int) -> int:
     from cade_cli.stereo import default_max_disparity
 
@@ -374,14 +427,12 @@ def _resolve_max_disp(max_disp: int | None, width: int) -> int:
 
 def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:
     """Refuse, before any work, outputs we could not write or must not overwrite."""
+    from cade_cli.atomic import check_writable
     from cade_cli.errors import CadeError
 
     if path.suffix.lower() not in suffixes:
         raise CadeError(f"cannot write {path}: unsupported extension {path.suffix or '(none)'}; use one of {', '.join(suffixes)}")
-    if not path.parent.is_dir():
-        raise CadeError(f"output directory {path.parent} does not exist; create it first")
-    if path.is_dir():
-        raise CadeError(f"output {path} is a directory; give a file name")
+    check_writable(path)  # the folder exists, is one, and takes new files; path is not a folder
     for source in inputs:
         if source.exists() and path.exists() and path.resolve() == source.resolve():
             raise CadeError(f"output {path} is also an input; choose another output name")
@@ -389,6 +440,10 @@ def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, 
 
 def _note(message: str) -> None:
     print(f"note: {message}", file=sys.stderr)
+
+
+def _warn(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -23,7 +23,15 @@ import tifffile
 
 from cade_cli.atomic import atomic_output
 from cade_cli.errors import CadeError
-from cade_cli.imageio import check_input_file, decode_with_cv2, one_line_message, read_bytes
+from cade_cli.imageio import (
+    MAX_IMAGE_SAMPLES,
+    check_image_size,
+    check_input_file,
+    decode_with_cv2,
+    one_line_message,
+    read_bytes,
+    read_tiff_array,
+)
 
 DISPARITY_SUFFIXES: tuple[str, ...] = (".pfm", ".tif", ".tiff", ".png", ".npy")
 """Extensions :func:`read_disparity` and :func:`write_disparity` handle (any case)."""
@@ -110,6 +118,7 @@ def read_pfm(path: Path) -> np.ndarray:
     path = check_input_file(path, suffixes=(".pfm",))
     raw = read_bytes(path)
     channels, width, height, little_endian, start = _parse_pfm_header(raw, path)
+    check_image_size(path, width, height)
     count = width * height * channels
     if len(raw) - start < 4 * count:
         raise CadeError(
@@ -220,13 +229,7 @@ def read_validity(path: Path) -> np.ndarray:
         CadeError: missing or unreadable file, unsupported extension, not one band.
     """
     path = check_input_file(Path(path), suffixes=VALIDITY_SUFFIXES)
-    if path.suffix.lower() == ".png":
-        mask = decode_with_cv2(path)
-    else:
-        try:
-            mask = tifffile.imread(path)
-        except Exception as exc:  # tifffile raises many types on corrupt files; none may escape
-            raise CadeError(f"cannot read {path} as TIFF: {one_line_message(exc)}; re-export it") from exc
+    mask = decode_with_cv2(path) if path.suffix.lower() == ".png" else read_tiff_array(path)
     if mask.ndim != 2:
         raise CadeError(f"{path} has shape {mask.shape}; a validity mask is one band (255/1 = valid, 0 = rejected)")
     return mask != 0
@@ -283,16 +286,14 @@ def _read_png_disparity(path: Path) -> np.ndarray:
 
 
 def _read_tiff_disparity(path: Path) -> np.ndarray:
-    try:
-        values = tifffile.imread(path)
-    except Exception as exc:  # tifffile raises many types on corrupt files; none may escape
-        raise CadeError(f"cannot read {path} as TIFF: {one_line_message(exc)}; re-export it") from exc
+    values = read_tiff_array(path)
     if not np.issubdtype(values.dtype, np.floating):
         raise CadeError(f"{path} stores {values.dtype} values; a disparity TIFF must be float32 (pixels, NaN = invalid)")
     return values.astype(np.float32)
 
 
 def _read_npy_disparity(path: Path) -> np.ndarray:
+    _check_npy_header(path)
     try:
         values = np.load(path, allow_pickle=False)
     except Exception as exc:  # numpy raises several types on corrupt files; none may escape
@@ -302,6 +303,30 @@ def _read_npy_disparity(path: Path) -> np.ndarray:
     ):
         raise CadeError(f"{path} does not hold a numeric array; save a float32 (H, W) array with numpy.save")
     return values.astype(np.float32)
+
+
+def _check_npy_header(path: Path) -> None:
+    """Refuse, from its header alone, a .npy file that is not a numeric array of a readable size."""
+    not_numeric = f"{path} does not hold a numeric array; save a float32 (H, W) array with numpy.save"
+    try:
+        with open(path, "rb") as stream:
+            version = np.lib.format.read_magic(stream)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(stream)
+            elif version == (2, 0):
+                shape, _, dtype = np.lib.format.read_array_header_2_0(stream)
+            else:  # 3.0 only adds non-Latin-1 field names: a structured array, not a map
+                raise CadeError(not_numeric)
+    except CadeError:
+        raise
+    except Exception as exc:  # numpy raises several types on a malformed header; none may escape
+        raise CadeError(f"cannot read {path} as .npy: {one_line_message(exc)}; re-save it with numpy.save") from exc
+    if dtype.kind not in "biuf":
+        raise CadeError(not_numeric)
+    if len(shape) == 2:
+        check_image_size(path, shape[1], shape[0])
+    elif float(np.prod(shape, dtype=np.float64)) > MAX_IMAGE_SAMPLES:
+        raise CadeError(f"{path} holds an array of shape {shape}, too large to be a disparity map; save one (H, W) band")
 
 
 def _parse_pfm_header(raw: bytes, path: Path) -> tuple[int, int, int, bool, int]:
@@ -371,9 +396,6 @@ def _write_npy(path: Path, values: np.ndarray) -> None:
 
 
 def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
-    """Run ``write(temporary)`` inside :func:`atomic_output`; OS errors become CadeError."""
-    try:
-        with atomic_output(path) as temporary:
-            write(temporary)
-    except OSError as exc:
-        raise CadeError(f"could not write {path}: {exc.strerror or exc}; check free space and permissions") from exc
+    """Run ``write(temporary)`` inside :func:`atomic_output` (which turns OS errors into CadeError)."""
+    with atomic_output(path) as temporary:
+        write(temporary)

@@ -56,6 +56,36 @@ def warp_to_reference(moving: np.ndarray, disparity: np.ndarray) -> tuple[np.nda
     return registered, inside
 
 
+def check_given_disparity(disparity: np.ndarray, trusted: np.ndarray, *, name: str = "the disparity map") -> None:
+    """Refuse a given map that cannot be a disparity of the pair it is to register.
+
+    A disparity is a shift along the row, so every trusted value lies strictly between
+    minus and plus the image width; a value beyond that (e.g. 1e30 used as a marker, or a
+    map of another resolution or in other units) means the file is not this pair's map,
+    and warping with it would silently produce nothing valid.
+
+    Args:
+        disparity: (H, W) float disparity, px; trusted: (H, W) bool, the pixels to use.
+        name: how the message names the map (e.g. its file).
+
+    Raises:
+        CadeError: no trusted pixel, or trusted values with ``|d| >= W``.
+    """
+    if not trusted.any():
+        raise CadeError(f"{name} has no valid pixel (all inf/NaN, 0 in a PNG, or rejected by the validity mask); "
+                        "give a map with valid disparities")
+    width = disparity.shape[1]
+    values = disparity[trusted]
+    beyond = np.abs(values) >= width
+    if beyond.any():
+        worst = float(values[np.argmax(np.abs(values))])
+        raise CadeError(
+            f"{name} holds {int(beyond.sum())} values at or beyond +/-{width} px (e.g. {worst:g}), the image width: "
+            "not disparities of this pair in pixels; check its resolution and units, and mark unknown pixels as "
+            "inf/NaN (0 in a PNG)"
+        )
+
+
 def register(
     moving: np.ndarray,
     reference: np.ndarray,
@@ -68,6 +98,7 @@ def register(
     preprocess: str = DEFAULT_PREPROCESS,
     fill: Fill = "row",
     model: str | None = None,
+    disparity_name: str = "the disparity map",
 ) -> Registration:
     """Warp the moving (right) band into the reference (left) view.
 
@@ -82,9 +113,15 @@ def register(
             ``"row"`` samples the moving band with the disparity filled from the
             background side along the row (occluded areas show the background).
         model: another network for the learned methods (:func:`cade_cli.estimate_disparity`).
+        disparity_name: how error messages name a given ``disparity`` (e.g. its file).
 
     Returns:
         :class:`Registration`.
+
+    Raises:
+        CadeError: bands of different sizes or not (H, W); a given disparity of another
+            size, without a trusted pixel, or not a disparity of this pair
+            (:func:`check_given_disparity`).
     """
     if fill not in FILL_CHOICES:
         raise CadeError(f"unknown fill {fill!r}; choose one of {', '.join(FILL_CHOICES)}")
@@ -117,8 +154,7 @@ def register(
                 raise CadeError(f"validity mask {np.shape(disparity_valid)[::-1]} and disparity map "
                                 f"{disparity.shape[::-1]} differ in size; use the mask written with that map")
             trusted &= np.asarray(disparity_valid, bool)
-        if not trusted.any():
-            raise CadeError("the disparity map has no valid pixel")
+        check_given_disparity(disparity, trusted, name=disparity_name)
     dense = densify(disparity, trusted)
     registered, inside = warp_to_reference(moving, dense)
     valid = trusted & inside

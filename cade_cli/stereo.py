@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
+import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
@@ -18,6 +20,55 @@ DEFAULT_PREPROCESS = "auto"
 MEMORY_LIMIT_BYTES = 8 * 2**30
 """Requests whose cost volumes (:attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel
 and disparity) would exceed this are refused."""
+
+
+TEXTURE_WINDOW = 9
+"""Side, px, of the square neighbourhood :func:`textureless` looks at: a pixel whose 9x9
+neighbourhood holds a single value (a blank, saturated or constant area) has nothing to
+match, in any band."""
+
+
+def textureless(band: np.ndarray, *, window: int = TEXTURE_WINDOW) -> np.ndarray:
+    """Where ``band`` is exactly constant over the ``window`` x ``window`` neighbourhood.
+
+    Args:
+        band: (H, W) real image, any units.
+        window: odd neighbourhood side, px (borders replicate the edge).
+
+    Returns:
+        (H, W) bool, True where the neighbourhood's minimum equals its maximum; a
+        non-finite pixel is never flat.
+    """
+    values = np.asarray(band, np.float32)
+    kernel = np.ones((window, window), np.uint8)
+    low = cv2.erode(values, kernel, borderType=cv2.BORDER_REPLICATE)
+    high = cv2.dilate(values, kernel, borderType=cv2.BORDER_REPLICATE)
+    return (low == high) & np.isfinite(values)
+
+
+def mark_textureless_invalid(result: DisparityResult, left: np.ndarray, right: np.ndarray) -> DisparityResult:
+    """``result`` with every estimate that rests on a flat area (:func:`textureless`) invalid.
+
+    A left pixel is flat when the left band is flat around it, or when the right band is
+    flat around the pixel its disparity points to (y, x - d): with nothing to match in
+    either band the matcher's value is a guess (a constant pair has no disparity at all).
+    Those pixels get NaN disparity, ``valid`` False and confidence 0; the others are
+    unchanged. Returns ``result`` itself when no estimate is affected.
+    """
+    left_flat, right_flat = textureless(left), textureless(right)
+    valid = np.asarray(result.valid, bool)
+    rows, columns = np.nonzero(valid & np.isfinite(result.disparity))
+    target = np.clip(np.rint(columns - result.disparity[rows, columns]), 0, right_flat.shape[1] - 1).astype(np.intp)
+    flat = left_flat.copy()
+    flat[rows, columns] |= right_flat[rows, target]
+    flat &= valid
+    if not flat.any():
+        return result
+    confidence = None if result.confidence is None else np.where(flat, np.float32(0), result.confidence)
+    return dataclasses.replace(
+        result, disparity=np.where(flat, np.float32(np.nan), result.disparity), valid=valid & ~flat,
+        confidence=confidence,
+    )
 
 
 def default_max_disparity(width: int) -> int:
@@ -56,7 +107,9 @@ def estimate_disparity(
     Returns:
         :class:`~cade_cli.matching.DisparityResult`: unfilled (H, W) float32 disparity
         in pixels (NaN where invalid) plus its (H, W) bool validity;
-        :func:`~cade_cli.matching.densify` fills it.
+        :func:`~cade_cli.matching.densify` fills it. Estimates that rest on a flat area
+        of either band are invalid (:func:`mark_textureless_invalid`): a constant pair
+        comes back 0 % valid.
     """
     matcher = get_matcher(method, model=model)
     left, right = np.asarray(left), np.asarray(right)
@@ -70,4 +123,5 @@ def estimate_disparity(
             f"a {left.shape[1]}x{left.shape[0]} pair over {max_disp - min_disp + 1} disparities needs about "
             f"{volume_bytes / 2**30:.0f} GB; lower --max-disp or downscale the images"
         )
-    return matcher(left, right, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess)
+    result = matcher(left, right, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess)
+    return mark_textureless_invalid(result, left, right)

@@ -5,10 +5,15 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from synthetic import render_pair
+
 REPO = Path(__file__).resolve().parents[1]
+FOLDER_DISPARITY = 5.0
+"""Disparity (px) of the scenes in :func:`folder_dataset`."""
 SHARED_DATA = Path(os.environ.get("CADE_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
@@ -23,3 +28,21 @@ def shared_data() -> Path:
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20240414)
+
+
+@pytest.fixture
+def folder_dataset(tmp_path, rng) -> Path:
+    """Two scenes in the `folder` layout: RGB views whose channels respond differently."""
+    root = tmp_path / "mine"
+    for sub in ("left", "right", "gt"):
+        (root / sub).mkdir(parents=True)
+    for name in ("first", "second"):
+        pair = render_pair(rng, (40, 64), background=(FOLDER_DISPARITY, 0.0))
+
+        def rgb(band):  # three 'filters' with different monotone responses, stored as BGR
+            return (np.stack([0.2 + 0.6 * band, band**1.5, band], axis=2) * 255).astype(np.uint8)
+
+        cv2.imwrite(str(root / "left" / f"{name}.png"), rgb(pair.left))
+        cv2.imwrite(str(root / "right" / f"{name}.png"), rgb(pair.right))
+        np.save(root / "gt" / f"{name}.npy", pair.disparity)
+    return root

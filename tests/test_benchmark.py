@@ -7,7 +7,6 @@ import dataclasses
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -18,27 +17,8 @@ from cade_cli.evaluation.loop import run_benchmark
 from cade_cli.evaluation.report import markdown
 from cade_cli.evaluation.timing import Timing
 from cade_cli.matching import DisparityResult
-from synthetic import render_pair
+from conftest import FOLDER_DISPARITY as DISPARITY
 
-DISPARITY = 5.0
-
-
-@pytest.fixture
-def folder_dataset(tmp_path, rng) -> Path:
-    """Two scenes in the `folder` layout: RGB views whose channels respond differently."""
-    root = tmp_path / "mine"
-    for sub in ("left", "right", "gt"):
-        (root / sub).mkdir(parents=True)
-    for name in ("first", "second"):
-        pair = render_pair(rng, (40, 64), background=(DISPARITY, 0.0))
-
-        def rgb(band):  # three 'filters' with different monotone responses, stored as BGR
-            return (np.stack([0.2 + 0.6 * band, band**1.5, band], axis=2) * 255).astype(np.uint8)
-
-        cv2.imwrite(str(root / "left" / f"{name}.png"), rgb(pair.left))
-        cv2.imwrite(str(root / "right" / f"{name}.png"), rgb(pair.right))
-        np.save(root / "gt" / f"{name}.npy", pair.disparity)
-    return root
 
 
 class Oracle:
@@ -241,3 +221,8 @@ def test_compare_records_reports_each_changed_score(folder_dataset, oracle, tmp_
     lines = [line for line in compare.differences(*[compare.records_by_key(p)[1] for p in (old, new)],
                                                   data["config"], 0.0)]
     assert lines == ["folder / first / cs / oracle / none / G>B / none: epe_all 0.0 -> 0.25 (+0.25)"]
+    data["records"][3]["scores"]["epe_all"] = 0.0
+    data["records"][0]["scores"]["auc_new"] = 1.0  # a score added since OLD
+    new.write_text(json.dumps(data))
+    assert compare.main([str(old), str(new)]) == 1
+    assert compare.main([str(old), str(new), "--new-metrics"]) == 0

@@ -107,13 +107,16 @@ def test_densify_with_nothing_valid_gives_zeros():
     assert invalid_percentage(np.full((2, 3), NAN), np.zeros((2, 3), bool)) == 100.0
 
 
-def test_score_keys_depend_on_nonocc():
+def test_score_keys_depend_on_nonocc_and_confidence():
     plain = score(PRED, GT)
-    assert list(plain) == [name for name in METRIC_NAMES if "nonocc" not in name]
+    assert list(plain) == [name for name in METRIC_NAMES if "nonocc" not in name and "auc" not in name]
     assert list(plain) == ["epe_all", "bad1_all", "bad2_all", "bad3_all", "bad5_all", "invalid"]
     with_nonocc = score(PRED, GT, nonocc=ALL)
-    assert list(with_nonocc) == list(METRIC_NAMES)
-    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS)) + 1
+    assert list(with_nonocc) == [name for name in METRIC_NAMES if "auc" not in name]
+    assert list(score(PRED, GT, nonocc=ALL, confidence=np.ones(PRED.shape))) == list(METRIC_NAMES)
+    # the confidence columns come last, so the earlier columns keep their places
+    assert METRIC_NAMES[-2:] == ("auc_conf_all", "auc_oracle_all")
+    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS)) + 1 + 2
 
 
 def test_score_values_by_hand():

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cade_cli.atomic import check_writable_folder
 from cade_cli.data.dataset import Dataset, DatasetSource
 from cade_cli.data.fetch import BASE_URL_ENV, install, mirror_url
 from cade_cli.data.flyingthings3d import FLYINGTHINGS3D
@@ -124,8 +125,7 @@ def download_dataset(
     to = Path(to)
     if to.exists() and not to.is_dir():
         raise CadeError(f"download target {to} is not a folder; give a folder with --to")
-    if not to.parent.is_dir():
-        raise CadeError(f"parent of download target {to} does not exist; create it first")
+    check_writable_folder(to)  # before any transfer: a folder we cannot create or fill is refused at once
     folder, downloads = to / source.folder, to / DOWNLOADS_FOLDER
     done: dict[str, list[str]] = {"present": [], "extracted": [], "downloaded": []}
     received = 0

@@ -3,7 +3,8 @@
 * :mod:`~cade_cli.evaluation.protocols`: which bands are matched (``cs``, ``rgb``,
   ``native``); every returned map goes through the one fill stage
   (:func:`cade_cli.matching.disparity.densify`) there.
-* :mod:`~cade_cli.evaluation.metrics`: EPE, bad-pixel rates, the invalid share.
+* :mod:`~cade_cli.evaluation.metrics`: EPE, bad-pixel rates, the invalid share, and the
+  sparsification areas that say how well a matcher's confidence ranks its errors.
 * :mod:`~cade_cli.evaluation.loop`: one unit of work per scene (decoded once), with task
   subsets, degradations (:mod:`~cade_cli.evaluation.degradations`) and timing
   (:mod:`~cade_cli.evaluation.timing`) as options; used by ``cade benchmark``, the

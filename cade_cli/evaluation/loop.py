@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from cade_cli.allocator import retain_freed_memory
+from cade_cli.atomic import atomic_output
 from cade_cli.data import Dataset, Scene, get_dataset
 from cade_cli.errors import CadeError, lookup
 from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
@@ -162,7 +163,8 @@ def evaluate_scene(scene: Scene, plan: Plan) -> list[Record]:
                 dataset=plan.dataset, resolution=scene.resolution, scene=scene.name, protocol=protocol,
                 method=method, preprocess=preprocess, task=result.name, seconds=result.seconds,
                 matcher_runs=len(results) - 1 if combined else 1,  # a combined map costs a run per task
-                scores=score(result.disparity, scene.disparity, nonocc=scene.nonocc, pred_valid=result.valid),
+                scores=score(result.disparity, scene.disparity, nonocc=scene.nonocc, pred_valid=result.valid,
+                             confidence=result.confidence),
                 degradation=degradation,
             ))
             if plan.save_dir is not None:
@@ -326,4 +328,6 @@ def save_maps(folder: Path, stem: str, disparity: np.ndarray, gt: np.ndarray) ->
     scaled = np.clip(np.nan_to_num(error, nan=0.0) / 8.0 * 255.0, 0, 255).astype(np.uint8)
     colour = cv2.applyColorMap(scaled, cv2.COLORMAP_INFERNO)
     colour[~np.isfinite(gt)] = (80, 0, 0)
-    cv2.imwrite(str(folder / f"{stem}_error.png"), colour)
+    encoded = cv2.imencode(".png", colour)[1]
+    with atomic_output(folder / f"{stem}_error.png") as temporary:  # an OS error becomes a CadeError
+        temporary.write_bytes(encoded.tobytes())

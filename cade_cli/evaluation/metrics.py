@@ -12,6 +12,11 @@ Conventions (see ``shared/data/README.md``):
   map they return), and a NaN left at a scored pixel is an error.
 * Regions: ``all`` = every pixel with finite GT; ``nonocc`` = those that the dataset's
   occlusion mask marks non-occluded (MiddEval3: ``mask0nocc.png == 255``).
+* Confidence (:attr:`cade_cli.matching.DisparityResult.confidence`) is scored by its
+  sparsification curve (:func:`sparsification_curve`): how fast the EPE of the kept pixels
+  falls when the least confident ones are removed first. Its area (``auc_conf_all``) lies
+  between the oracle's (``auc_oracle_all``: pixels removed by their true error) and a
+  random order's, which is ``epe_all`` itself.
 """
 
 from __future__ import annotations
@@ -35,9 +40,11 @@ METRIC_NAMES: tuple[str, ...] = tuple(
     f"{metric}_{region}"
     for region in REGIONS
     for metric in ("epe", *(_bad_name(t) for t in BAD_THRESHOLDS))
-) + ("invalid",)
+) + ("invalid", "auc_conf_all", "auc_oracle_all")
 """Every key :func:`score` can return, in a stable order for table columns:
-``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, epe_nonocc, ..., bad5_nonocc, invalid``."""
+``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, epe_nonocc, ..., bad5_nonocc, invalid``,
+then the sparsification areas of the confidence and of the oracle (px, all pixels with GT;
+only for predictions that carry a confidence)."""
 
 
 def _check_same_shape(**arrays: np.ndarray) -> None:
@@ -122,12 +129,59 @@ def invalid_percentage(pred: np.ndarray, pred_valid: np.ndarray) -> float:
     return float(100.0 * (1.0 - valid.mean())) if valid.size else 0.0
 
 
+def sparsification_curve(errors: np.ndarray, confidence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The sparsification curve: EPE of the pixels kept when the least confident go first.
+
+    Pixels are removed in order of increasing ``confidence``; pixels of equal confidence
+    leave in random order, and the curve is the expectation over that order (each error
+    replaced by the mean error of its tie group), so a constant confidence gives the flat
+    curve of a random order, at ``errors.mean()``. ``confidence = -errors`` gives the
+    oracle's curve.
+
+    Args:
+        errors: (N,) absolute disparity errors in px, finite.
+        confidence: (N,) real scores of the same pixels, higher = more trusted.
+
+    Returns:
+        ``(kept, epe)``: (N,) float64 arrays; ``kept[k - 1] = k / N`` is the fraction kept
+        and ``epe[k - 1]`` the mean error of the k most confident pixels, px. Empty for N = 0.
+    """
+    errors = np.asarray(errors, np.float64).ravel()
+    confidence = np.asarray(confidence).ravel()
+    if errors.shape != confidence.shape:
+        raise CadeError(f"errors has {errors.size} pixels but confidence {confidence.size}; give one score per error")
+    if not (np.isfinite(errors).all() and np.isfinite(confidence).all()):
+        raise CadeError("errors and confidence must be finite; score only pixels with GT, after densify")
+    count = errors.size
+    if count == 0:
+        return np.empty(0), np.empty(0)
+    order = np.argsort(-confidence, kind="stable")
+    ranked, sorted_errors = confidence[order], errors[order]
+    starts = np.flatnonzero(np.r_[True, ranked[1:] != ranked[:-1]])
+    sizes = np.diff(np.r_[starts, count])
+    tie_means = np.add.reduceat(sorted_errors, starts) / sizes
+    kept = np.arange(1, count + 1, dtype=np.float64)
+    return kept / count, np.cumsum(np.repeat(tie_means, sizes)) / kept
+
+
+def sparsification_auc(errors: np.ndarray, confidence: np.ndarray) -> float:
+    """Area under :func:`sparsification_curve` over the kept fraction (0, 1], px.
+
+    The mean of the curve over its N points: ``errors.mean()`` for a random (or
+    constant) confidence, the smallest possible value for the oracle order
+    (``confidence = -errors``); lower is better. NaN for no pixel.
+    """
+    _, epe = sparsification_curve(errors, confidence)
+    return float(epe.mean()) if epe.size else float("nan")
+
+
 def score(
     pred: np.ndarray,
     gt: np.ndarray,
     *,
     nonocc: np.ndarray | None = None,
     pred_valid: np.ndarray | None = None,
+    confidence: np.ndarray | None = None,
 ) -> dict[str, float]:
     """All metrics of one dense prediction against its GT, keyed as in :data:`METRIC_NAMES`.
 
@@ -138,12 +192,16 @@ def score(
         nonocc: (H, W) bool, True = non-occluded; adds the ``*_nonocc`` keys.
         pred_valid: (H, W) bool, the matcher's own validity (before the fill); None =
             every finite pixel valid. Only ``invalid`` depends on it.
+        confidence: (H, W) float, the matcher's confidence (higher = more trusted); adds
+            ``auc_conf_all`` and ``auc_oracle_all`` (:func:`sparsification_auc` over all
+            pixels with GT, px).
 
     Returns:
         ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` (%), the same with ``_nonocc``
-        when ``nonocc`` is given, and ``invalid``: percentage of *all* image pixels that
-        the matcher rejected (:func:`invalid_percentage`). Keys follow :data:`METRIC_NAMES`
-        order. Errors are NaN when a region has no pixel with finite GT.
+        when ``nonocc`` is given, ``invalid``: percentage of *all* image pixels that
+        the matcher rejected (:func:`invalid_percentage`), and with ``confidence`` the two
+        sparsification areas. Keys follow :data:`METRIC_NAMES` order. Errors are NaN when
+        a region has no pixel with finite GT.
 
     Raises:
         CadeError: shapes differ, a mask is not bool, ``pred`` is not finite at a pixel
@@ -161,4 +219,11 @@ def score(
         for threshold in BAD_THRESHOLDS:
             results[f"{_bad_name(threshold)}_{region}"] = bad_pixel_rate(pred, gt, mask, threshold=threshold)
     results["invalid"] = invalid_percentage(pred, np.asarray(pred_valid))
+    if confidence is not None:
+        confidence = np.asarray(confidence)
+        _check_same_shape(pred=pred, confidence=confidence)
+        errors = _scored_errors(pred, gt, regions["all"])
+        trusted = confidence[np.isfinite(np.asarray(gt))]
+        results["auc_conf_all"] = sparsification_auc(errors, trusted)
+        results["auc_oracle_all"] = sparsification_auc(errors, -errors)
     return {name: results[name] for name in METRIC_NAMES if name in results}

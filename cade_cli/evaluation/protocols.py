@@ -159,6 +159,10 @@ class TaskResult:
             results double-counts ``rgb``.
         scored: True for the predictions the protocol scores (every ``cs`` task, the
             ``native`` task, only ``RGB-median`` for ``rgb``).
+        confidence: (H, W) float32 in [0, 1], the matcher's confidence
+            (:attr:`~cade_cli.matching.DisparityResult.confidence`), 0 where ``valid`` is
+            False; for ``RGB-median`` the per-pixel median of the tasks' confidences. None
+            when the matcher gives none.
     """
 
     name: str
@@ -166,12 +170,16 @@ class TaskResult:
     valid: np.ndarray
     seconds: float
     scored: bool
+    confidence: np.ndarray | None = None
 
 
-def _densified(name: str, disparity: np.ndarray, valid: np.ndarray, seconds: float, scored: bool) -> TaskResult:
-    """The one place where the evaluation fills a map."""
+def _densified(name: str, disparity: np.ndarray, valid: np.ndarray, seconds: float, scored: bool,
+               confidence: np.ndarray | None = None) -> TaskResult:
+    """The one place where the evaluation fills a map (the confidence stays 0 where it is filled)."""
     valid = np.asarray(valid, bool) & np.isfinite(disparity)
-    return TaskResult(name, densify(disparity, valid), valid, seconds, scored)
+    if confidence is not None:
+        confidence = np.where(valid, np.asarray(confidence, np.float32), np.float32(0))
+    return TaskResult(name, densify(disparity, valid), valid, seconds, scored, confidence)
 
 
 MatcherFn = Callable[[np.ndarray, np.ndarray], DisparityResult]
@@ -234,13 +242,19 @@ def run_protocol(
                 f"task {task.name}: matcher returned disparity {np.shape(output.disparity)} and valid "
                 f"{np.shape(output.valid)} for bands of shape {left_band.shape}"
             )
+        confidence = output.confidence
+        if confidence is not None and np.shape(confidence) != left_band.shape:
+            raise CadeError(f"task {task.name}: matcher returned confidence {np.shape(confidence)} for bands of "
+                            f"shape {left_band.shape}")
         results.append(_densified(task.name, output.disparity, output.valid, statistics.median(seconds),
-                                  scored_alone))
+                                  scored_alone, confidence))
     if protocol.combine == "median":
         start = time.perf_counter()
         median, valid = median_combine([r.disparity for r in results], [r.valid for r in results])
         seconds = sum(r.seconds for r in results) + time.perf_counter() - start
-        results.append(_densified(MEDIAN_NAME, median, valid, seconds, scored=True))
+        confidences = [r.confidence for r in results]
+        confidence = None if any(c is None for c in confidences) else np.median(np.stack(confidences), axis=0)
+        results.append(_densified(MEDIAN_NAME, median, valid, seconds, scored=True, confidence=confidence))
     elif protocol.combine is not None:
         raise CadeError(f"protocol {protocol.name!r} has unknown combine {protocol.combine!r}")
     return results

@@ -1,7 +1,8 @@
 """Tables of a :class:`~cade_cli.evaluation.loop.BenchmarkRun`, shaped like the paper's Table 1.
 
 Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol, one table per
-pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask).
+pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask), and
+one table of how well each matcher's confidence ranks its errors (:func:`confidence_table`).
 The same rows feed the terminal table and the Markdown report.
 """
 
@@ -42,6 +43,48 @@ def table(run: BenchmarkRun, pixels: str) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def confidence_table(run: BenchmarkRun) -> tuple[list[str], list[list[str]]] | None:
+    """(header, rows) of the sparsification areas, or None when no record has them.
+
+    Per protocol: ``random`` (the area of a random order, i.e. the mean ``epe_all``),
+    ``AUC`` (the confidence's, ``auc_conf_all``), ``oracle`` (``auc_oracle_all``), all in
+    px, and ``gain %`` = 100 (random - AUC) / (random - oracle): the share of the
+    oracle's improvement over a random order that the confidence achieves (0: no better
+    than random, 100: ranks errors perfectly).
+    """
+    if not any("auc_conf_all" in record.scores for record in run.records):
+        return None
+    protocols = run.config["protocols"]
+    header = ["method"] + [f"{protocol.upper()} {label}" for protocol in protocols
+                           for label in ("random", "AUC", "oracle", "gain %")]
+    summary = run.summary()
+    rows = []
+    for method in run.config["methods"]:
+        for preprocess in run.config["preprocess"]:
+            cells, found = [f"{method} + {preprocess}"], False
+            for protocol in protocols:
+                row = next((r for r in summary if (r["method"], r["preprocess"], r["protocol"])
+                            == (method, preprocess, protocol)), None)
+                scores = {} if row is None else row["scores"]
+                random, auc, oracle = (scores.get(key) for key in ("epe_all", "auc_conf_all", "auc_oracle_all"))
+                if auc is None:
+                    cells += ["—"] * 4
+                    continue
+                found = True
+                gain = 100.0 * (random - auc) / (random - oracle) if random > oracle else float("nan")
+                cells += [f"{random:.2f}", f"{auc:.2f}", f"{oracle:.2f}", f"{gain:.0f}"]
+            if found:
+                rows.append(cells)
+    return header, rows
+
+
+def confidence_title(run: BenchmarkRun) -> str:
+    """Heading of :func:`confidence_table`."""
+    return (f"{run.config['dataset']}, confidence: area under the sparsification curve (EPE px of the pixels kept "
+            "as the least confident are removed; all pixels with ground truth); gain % = share of the oracle's "
+            "improvement over a random order")
+
+
 def title(run: BenchmarkRun, pixels: str) -> str:
     """Table heading naming the dataset, resolution, scene count and pixel set."""
     resolutions = sorted({record.resolution for record in run.records}) or ["?"]
@@ -59,6 +102,12 @@ def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
     for pixels in pixel_sets(run):
         header, rows = table(run, pixels)
         lines += [f"## {title(run, pixels)}", "", markdown_row(header), markdown_row(["---"] + ["---:"] * (len(header) - 1))]
+        lines += [markdown_row(row) for row in rows] + [""]
+    confidence = confidence_table(run)
+    if confidence is not None:
+        header, rows = confidence
+        lines += [f"## {confidence_title(run)}", "", markdown_row(header),
+                  markdown_row(["---"] + ["---:"] * (len(header) - 1))]
         lines += [markdown_row(row) for row in rows] + [""]
     lines += ["## Per scene and task", "",
               markdown_row(["scene", "protocol", "task", "method", "EPE all", "BMP3 all", "EPE nonocc", "BMP3 nonocc",

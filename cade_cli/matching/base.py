@@ -61,10 +61,16 @@ class DisparityResult:
             fill stage).
         valid: (H, W) bool, False where the matcher rejected its own estimate
             (left-right inconsistency, outside the right view, ...).
+        confidence: (H, W) float32 in [0, 1], how far the matcher trusts each valid
+            estimate (higher = more likely right; 0 exactly where ``valid`` is False), for
+            masking what it is unsure of: keep ``confidence >= t``. Each matcher documents
+            what it measures (:mod:`cade_cli.matching.confidence`); its values rank pixels
+            within a map and are not calibrated probabilities. None when the kernel gives none.
     """
 
     disparity: np.ndarray
     valid: np.ndarray
+    confidence: np.ndarray | None = None
 
 
 Kernel = Callable[..., DisparityResult]

@@ -10,8 +10,10 @@ import cv2
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange, DisparityResult, preprocessed
+from cade_cli.matching.confidence import neighbourhood_confidence, peak_ratio_confidence
 from cade_cli.matching.cost import CostVolume, census_cost, quantize, zncc_cost
 from cade_cli.matching.disparity import (
+    best_level,
     fill_invalid_along_rows,
     left_right_check,
     right_view_cost,
@@ -26,6 +28,8 @@ CostFunction = Callable[[np.ndarray, np.ndarray, DisparityRange], CostVolume]
 class SgmPipeline:
     """cost -> 8-path SGM -> WTA + parabola -> left-right check -> median (of the
     row-filled map, kept at the valid pixels); the result is unfilled (NaN where invalid).
+    Its confidence is the peak ratio of the aggregated cost at the winner
+    (:func:`~cade_cli.matching.confidence.peak_ratio_confidence`), 0 where invalid.
 
     Attributes:
         cost: builds the (H, W, D) lower-is-better volume.
@@ -35,6 +39,8 @@ class SgmPipeline:
         lr_tolerance: max |d_left - d_right| in px for a pixel to stay valid.
         median: side of the median filter applied to the filled map (1 = off); it
             removes isolated outliers that survive the left-right check.
+        confidence: compute the confidence (False: ``DisparityResult.confidence`` is
+            None; the disparity and validity are the same either way).
     """
 
     cost: CostFunction
@@ -43,6 +49,7 @@ class SgmPipeline:
     quantize_scale: float | None = None
     lr_tolerance: float = 1.0
     median: int = 3
+    confidence: bool = True
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *,
                  preprocess: str = "none") -> DisparityResult:
@@ -51,12 +58,14 @@ class SgmPipeline:
         if self.quantize_scale is not None:
             cost = quantize(cost, scale=self.quantize_scale)
         aggregated = sgm_aggregate(cost, p1=self.p1, p2=self.p2)
-        left_disparity = winner_takes_all(aggregated)
+        best = best_level(aggregated) if self.confidence else None
+        left_disparity = winner_takes_all(aggregated, best=best)
         right_disparity = winner_takes_all(right_view_cost(aggregated))
         valid = left_right_check(left_disparity, right_disparity, tolerance=self.lr_tolerance)
+        confidence = None if best is None else peak_ratio_confidence(aggregated, best, valid)
         if self.median > 1:  # the median needs a dense map; its values are kept where valid
             left_disparity = cv2.medianBlur(fill_invalid_along_rows(left_disparity, valid), self.median)
-        return DisparityResult(np.where(valid, left_disparity, np.float32(np.nan)), valid)
+        return DisparityResult(np.where(valid, left_disparity, np.float32(np.nan)), valid, confidence)
 
 
 # Census costs are bit counts (0..48 for 7x7); ZNCC costs (0..2) are quantized x32.
@@ -70,12 +79,16 @@ class OpenCvSgbm:
 
     Bands are stretched to uint8 over their own min..max. OpenCV needs a disparity count
     divisible by 16, so it searches a slightly wider range; estimates outside the
-    requested range and OpenCV's own rejects are marked invalid (NaN).
+    requested range and OpenCV's own rejects are marked invalid (NaN). OpenCV gives no
+    costs (and its left-right check is already part of the validity): the confidence is
+    graded from the map itself (:func:`~cade_cli.matching.confidence.neighbourhood_confidence`);
+    ``confidence=False`` leaves it None.
     """
 
     block_size: int = 5
     uniqueness_ratio: int = 10
     full_dp: bool = True
+    confidence: bool = True
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *,
                  preprocess: str = "none") -> DisparityResult:
@@ -85,7 +98,8 @@ class OpenCvSgbm:
                                mode=cv2.STEREO_SGBM_MODE_HH if self.full_dp else cv2.STEREO_SGBM_MODE_SGBM)
         raw = matcher.compute(to_uint8(left), to_uint8(right)).astype(np.float32) / 16.0
         valid = (raw >= disparity_range.minimum) & (raw <= disparity_range.maximum)
-        return DisparityResult(np.where(valid, raw, np.float32(np.nan)), valid)
+        confidence = neighbourhood_confidence(raw, valid) if self.confidence else None
+        return DisparityResult(np.where(valid, raw, np.float32(np.nan)), valid, confidence)
 
 
 def sgbm_matcher(minimum: int, count: int, *, block: int, p1: int, p2: int, uniqueness: int, prefilter_cap: int,

@@ -8,19 +8,34 @@ import numpy as np
 from cade_cli.matching.cost import CostVolume, overlap
 
 
-def winner_takes_all(cost: CostVolume, *, subpixel: bool = True) -> np.ndarray:
+def _lower_is_better(cost: CostVolume) -> np.ndarray:
+    """The volume's values, negated when higher is better (unsigned ones as float32)."""
+    values = cost.values
+    if not cost.lower_is_better:
+        values = -values.astype(np.float32) if np.issubdtype(values.dtype, np.unsignedinteger) else -values
+    return values
+
+
+def best_level(cost: CostVolume) -> np.ndarray:
+    """(H, W) int index k of the best cost per pixel (the first of equal ones); the
+    disparity is ``cost.disparity_range.minimum + k``."""
+    return np.argmin(_lower_is_better(cost), axis=2)
+
+
+def winner_takes_all(cost: CostVolume, *, subpixel: bool = True, best: np.ndarray | None = None) -> np.ndarray:
     """Best disparity per pixel of the reference view of ``cost``.
 
     With ``subpixel``, a parabola through the best cost and its two neighbours refines
     the integer winner (offset clipped to +-0.5 px; none at the ends of the range).
+    ``best`` is :func:`best_level` of ``cost`` when the caller already has it (the
+    confidence stage needs it too).
 
     Returns:
         (H, W) float32 disparity in pixels.
     """
-    values = cost.values
-    if not cost.lower_is_better:
-        values = -values.astype(np.float32) if np.issubdtype(values.dtype, np.unsignedinteger) else -values
-    best = np.argmin(values, axis=2)
+    values = _lower_is_better(cost)
+    if best is None:
+        best = np.argmin(values, axis=2)
     disparity = best.astype(np.float32) + np.float32(cost.disparity_range.minimum)
     if not subpixel or values.shape[2] < 3:
         return disparity

@@ -6,8 +6,10 @@ bands' color-agnostic transforms) -> visibility (:func:`~cade_cli.matching.dispa
 on the network's surface: a pixel is invalid where a nearer surface lands left of it in the
 right view, or its match leaves the image) -> refinement
 (:class:`~cade_cli.matching.refinement.RankSgbmRefinement` of the raw bands, at the
-visible pixels only) -> the unfilled result (NaN where invalid; filling is the caller's
-stage, :func:`~cade_cli.matching.disparity.densify`).
+visible pixels only) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
+the network's uncertainty and whether the refinement's SGBM match agreed with it) -> the
+unfilled result (NaN where invalid; filling is the caller's stage,
+:func:`~cade_cli.matching.disparity.densify`).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
@@ -29,21 +32,27 @@ class LearnedPipeline:
     Attributes:
         network: the network stage (which model, from which folder).
         refinement: the full-resolution refinement; None returns the network's map.
+        confidence: compute the confidence (False: ``DisparityResult.confidence`` is
+            None; the disparity and validity are the same either way).
     """
 
     network: NetworkStage = field(default_factory=NetworkStage)
     refinement: RankSgbmRefinement | None = field(default_factory=RankSgbmRefinement)
+    confidence: bool = True
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange, *,
                  preprocess: str = "cade") -> DisparityResult:
         """Disparity of the raw bands ``left`` against ``right`` (the network sees their
         color-agnostic transforms, ``preprocess`` must be ``"cade"``; the refinement
         matches the raw bands)."""
-        disparity = self.network(left, right, disparity_range)
+        network, uncertainty = self.network.estimate(left, right, disparity_range)
         # Visibility is judged on the network's surface: the refinement's per-pixel
         # corrections would scatter it. Occluded pixels have nothing to match: not refined.
-        valid = visible_in_right_view(disparity)
+        valid = visible_in_right_view(network)
+        disparity, agreement = network, None
         if self.refinement is not None:
-            refined = self.refinement(left, right, disparity, disparity_range)
+            refined, taken = self.refinement.refine(left, right, network, disparity_range)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
-        return DisparityResult(np.where(valid, disparity, np.float32(np.nan)), valid)
+            agreement = np.where(taken, np.abs(refined - network), np.float32(np.inf))
+        confidence = network_confidence(uncertainty, valid, agreement=agreement) if self.confidence else None
+        return DisparityResult(np.where(valid, disparity, np.float32(np.nan)), valid, confidence)

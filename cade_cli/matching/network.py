@@ -14,9 +14,11 @@ with (:mod:`cade_cli.model_card`). Around it :class:`NetworkStage`:
 * splits tall images into overlapping horizontal strips (:func:`strips`), so memory
   stays bounded (disparity is horizontal: a strip holds everything its rows need).
 
-The network's ``uncertainty`` output (spread of its disparity distribution) is not used
+The network's ``uncertainty`` output (spread of its disparity distribution, px) is not used
 for validity: rejecting pixels above 3 px and filling them from the background replaced
-many good estimates on thin and slanted structures (models/README.md, "Validity").
+many good estimates on thin and slanted structures (models/README.md, "Validity"). It
+feeds the matcher's confidence instead (:func:`~cade_cli.matching.confidence.network_confidence`);
+:meth:`NetworkStage.estimate` returns it beside the disparity, resampled like it.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -134,18 +137,33 @@ def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: 
     return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
 
 
-def run_network(session, divisor: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """The network's (H, W) float32 disparity (px, 0 .. levels - 1) for color-agnostic
-    bands of any size: strips, padding, cropping."""
+class NetworkOutput(NamedTuple):
+    """The network's two (H, W) float32 outputs for the left view, px: ``disparity`` and
+    ``uncertainty`` (standard deviation of its soft-argmin distribution, >= 0)."""
+
+    disparity: np.ndarray
+    uncertainty: np.ndarray
+
+
+def run_network_outputs(session, divisor: int, left: np.ndarray, right: np.ndarray) -> NetworkOutput:
+    """The network's disparity (px, 0 .. levels - 1) and uncertainty (px) for
+    color-agnostic bands of any size: strips, padding, cropping. Asking for both outputs
+    leaves the disparity bit-identical to asking for it alone."""
     height, width = left.shape
-    disparity = np.empty((height, width), np.float32)
+    outputs = NetworkOutput(np.empty((height, width), np.float32), np.empty((height, width), np.float32))
     padded_width = width + (-width % divisor)
     for start, stop, keep_start, keep_stop in strips(height, padded_width, max_pixels=STRIP_PIXELS, divisor=divisor):
         inputs = {name: pad_to_divisor(band[start:stop], divisor)[0][None, None]
                   for name, band in (("left", left), ("right", right))}
-        (out,) = session.run(["disparity"], inputs)
-        disparity[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start, :width]
-    return disparity
+        for kept, out in zip(outputs, session.run(list(NetworkOutput._fields), inputs)):
+            kept[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start, :width]
+    return outputs
+
+
+def run_network(session, divisor: int, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """The network's (H, W) float32 disparity (px, 0 .. levels - 1) for color-agnostic
+    bands of any size (:func:`run_network_outputs` without the uncertainty)."""
+    return run_network_outputs(session, divisor, left, right).disparity
 
 
 @dataclass(frozen=True)
@@ -162,6 +180,11 @@ class NetworkStage:
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> np.ndarray:
         """(H, W) float32 disparity in px, clipped to ``disparity_range``, of the raw bands
         ``left`` against ``right`` (the network sees their CADE transforms)."""
+        return self.estimate(left, right, disparity_range).disparity
+
+    def estimate(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> NetworkOutput:
+        """The disparity of :meth:`__call__` and the network's uncertainty (px of the input
+        images: on a pyramid level it is upsampled and rescaled like the disparity)."""
         card = read_card(self.model)
         variant, factor = choose_variant(card, disparity_range.span)
         session = onnx_session(variant.path, variant.sha256)
@@ -172,8 +195,9 @@ class NetworkStage:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))
             left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)
                                      for band in (left_band, right_band))
-        network = run_network(session, card.divisor, left_band, right_band)
+        network, uncertainty = run_network_outputs(session, card.divisor, left_band, right_band)
         if factor > 1:
-            network = cv2.resize(network, (width, height), interpolation=cv2.INTER_LINEAR) * np.float32(
-                width / left_band.shape[1])
-        return np.clip(network + minimum, minimum, disparity_range.maximum)
+            scale = np.float32(width / left_band.shape[1])
+            network, uncertainty = (cv2.resize(output, (width, height), interpolation=cv2.INTER_LINEAR) * scale
+                                    for output in (network, uncertainty))
+        return NetworkOutput(np.clip(network + minimum, minimum, disparity_range.maximum), uncertainty)

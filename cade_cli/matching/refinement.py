@@ -144,17 +144,27 @@ class RankSgbmRefinement:
         """Refined (H, W) float32 disparity, px, of the raw bands ``left`` / ``right`` (any
         units; only their order matters) from the network's ``disparity`` (px, within
         ``disparity_range``); a non-zero minimum is handled by shifting the right band."""
-        minimum = disparity_range.minimum
-        refined = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum, disparity_range.span)
-        return refined + minimum if minimum else refined
+        return self.refine(left, right, disparity, disparity_range)[0]
 
-    def refine_span(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray, span: int) -> np.ndarray:
-        """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range)."""
-        if span < 1:
-            return np.asarray(disparity, np.float32)  # a single disparity: nothing to choose between
+    def refine(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+               disparity_range: DisparityRange) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`__call__`'s refined disparity and the (H, W) bool mask of the pixels where
+        it is SGBM's match (accepted, within ``agreement`` px of ``disparity``); elsewhere
+        it is ``disparity`` itself."""
+        minimum = disparity_range.minimum
+        refined, taken = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum,
+                                          disparity_range.span)
+        return (refined + minimum if minimum else refined), taken
+
+    def refine_span(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                    span: int) -> tuple[np.ndarray, np.ndarray]:
+        """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range),
+        and where it took SGBM's match (as :meth:`refine`)."""
+        if span < 1:  # a single disparity: nothing to choose between
+            return np.asarray(disparity, np.float32), np.zeros(np.shape(disparity), bool)
         matched, accepted = self.candidate(left, right, disparity, span)
         accepted &= np.abs(matched - disparity) <= self.agreement
-        return np.where(accepted, matched, disparity).astype(np.float32)
+        return np.where(accepted, matched, disparity).astype(np.float32), accepted
 
     def candidate(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                   span: int) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ import torch
 
 from cade_cli.checksum import file_sha256
 from cade_cli.model_card import write_card
-from cade_cli.train.model import DIVISOR, EXPORT_OUTPUTS, CadeNet, ExportWrapper, design_of, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, design_of, parameter_count
 
 OPSET = 17
 INPUT_NAMES = ["left", "right"]
