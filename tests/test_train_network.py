@@ -163,7 +163,7 @@ def test_a_3x3x3_entry_kernel_becomes_the_1x1x1_kernel_with_the_same_flat_respon
 def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: Path):
     legacy = CadeNet(levels=16, **LEGACY_DESIGN)
     config = TrainConfig(out="old", textures=[], levels=16)
-    old_config = {k: v for k, v in vars(config).items() if k not in ("padding", "entry_kernel")}
+    old_config = {k: v for k, v in vars(config).items() if k not in ("padding", "entry_kernel", "channels3d")}
     torch.save({"model": legacy.state_dict(), "config": old_config, "step": 1, "elapsed_s": 0.0},
                tmp_path / "legacy.pt")
     # a checkpoint written before the design keys existed exports as the design it was trained with
@@ -173,7 +173,7 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
     tuned = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=32, width=64,
                         levels=16, workers=0, init=str(tmp_path / "legacy.pt"))
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
-    assert card["design"] == {"padding": "zeros", "entry_kernel": 1}
+    assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
 
@@ -240,3 +240,24 @@ def make_real_scene(folder: Path, rng: np.random.Generator) -> None:
     write_disparity(folder / "disp0GT.pfm", np.full((48, 80), 5.0, np.float32))
     cv2.imwrite(str(folder / "mask0nocc.png"), np.full((48, 80), 255, np.uint8))
     (folder / "calib.txt").write_text("width=80\nheight=48\nndisp=16\n")
+
+
+def test_a_wider_3d_part_starts_from_a_narrower_checkpoints_2d_weights(tmp_path: Path):
+    """--channels3d 16 --init-partial: the 2D features and the refinement come from the
+    8-channel checkpoint, the 3D aggregation starts fresh, and the design survives export."""
+    from cade_cli.train.export import load_checkpoint
+
+    narrow = CadeNet(levels=16)
+    torch.save({"model": narrow.state_dict()}, tmp_path / "narrow.pt")
+    config = TrainConfig(out=str(tmp_path / "wide"), textures=[], steps=1, batch=1, height=32, width=64, levels=16,
+                         workers=0, validate_every=100, channels3d=16, init=str(tmp_path / "narrow.pt"),
+                         init_partial=True, lr=1e-12, warmup=0)
+    train(config)
+    wide, _ = load_checkpoint(tmp_path / "wide" / "last.pt")
+    assert wide.design["channels3d"] == 16 and parameter_count(wide) > parameter_count(narrow)
+    first = "features.net.0.0.weight" if "features.net.0.0.weight" in narrow.state_dict() else next(
+        key for key in narrow.state_dict() if key.startswith("features"))
+    torch.testing.assert_close(wide.state_dict()[first], narrow.state_dict()[first], atol=1e-6, rtol=0)
+    with pytest.raises(RuntimeError):  # without --init-partial the shapes do not fit
+        train(TrainConfig(out=str(tmp_path / "strict"), textures=[], steps=1, batch=1, height=32, width=64,
+                          levels=16, workers=0, channels3d=16, init=str(tmp_path / "narrow.pt")))

@@ -48,6 +48,9 @@ def fit(
                                                   "(../shared/data/train-real); never a reporting set.")] = None,
     real_share: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs cut from a real "
                                               "scene instead of rendered (needs --real-dir).")] = 0.0,
+    channels3d: Annotated[int, typer.Option(min=1, help="Channels of the 3D aggregation (8: cade-v4/v6).")] = 8,
+    init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
+                                               "(a wider 3D part starts fresh).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
@@ -64,6 +67,7 @@ def fit(
                          init=str(init) if init else None, warmup=warmup, padding=padding,
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
+                         channels3d=channels3d, init_partial=init_partial,
                          time_budget_s=time_budget)
     train(config, resume=resume)
 

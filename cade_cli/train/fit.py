@@ -20,7 +20,7 @@ import torch.nn.functional as F
 
 from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
 from cade_cli.matching.network import pad_to_divisor
-from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count, transferable
 from cade_cli.train.pairs import cade_pair
 from cade_cli.train.real import RealScenes
 from cade_cli.train.scenes import Misalignment, TexturePool, render_scene
@@ -55,6 +55,11 @@ class TrainConfig:
     """CadeNet's 2D padding mode; cade-v1 … v3 were trained with "replicate"."""
     entry_kernel: int = 1
     """CadeNet's first 3D kernel size; cade-v1 … v3 were trained with 3."""
+    channels3d: int = 8
+    """Channels of CadeNet's 3D aggregation (8 in cade-v1 … v6; 16 for the accurate tier)."""
+    init_partial: bool = False
+    """With ``init``: take only the tensors whose shapes fit (:func:`transferable`), e.g. a
+    wider 3D part starting fresh beside cade-v6's 2D features and refinement."""
     misaligned: float = 0.0
     """Share of training pairs whose right view is vertically misaligned
     (:class:`~cade_cli.train.scenes.Misalignment`: up to 1 px, plus a slight roll and zoom);
@@ -211,7 +216,10 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         torch.set_rng_state(state["torch_rng"])
     elif config.init:
         initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
-        net.load_state_dict(adapt_state_dict(initial, net))
+        if config.init_partial:
+            net.load_state_dict(transferable(initial, net), strict=False)
+        else:
+            net.load_state_dict(adapt_state_dict(initial, net))
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log_path = out / "log.csv"
     new_log = not log_path.exists() or start == 0

@@ -150,7 +150,7 @@ class CadeNet(nn.Module):
             raise ValueError(f"levels must be a multiple of {DIVISOR}, got {levels}")
         self.levels, self.groups = levels, groups
         self.coarse_levels = levels // 4
-        self.design = {"padding": padding, "entry_kernel": entry_kernel}
+        self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d}
         self.features = FeatureNet(features, padding)
         self.aggregation = Aggregation(groups, channels3d, entry_kernel)
         self.refinement = Refinement(refine_channels, padding)
@@ -199,7 +199,7 @@ class ExportWrapper(nn.Module):
         return out[self.output], out["uncertainty"]
 
 
-LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3}
+LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8}
 """The design of checkpoints whose config predates the ``padding``/``entry_kernel`` keys (cade-v1 … v3)."""
 
 
@@ -220,6 +220,13 @@ def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str
             value = value.sum(dim=(2, 3, 4), keepdim=True)
         adapted[key] = value
     return adapted
+
+
+def transferable(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str, torch.Tensor]:
+    """The tensors of ``state`` that fit ``net`` as they are (same name, same shape): a
+    wider net starts from a narrower one's 2D features and refinement, its 3D part fresh."""
+    target = net.state_dict()
+    return {key: value for key, value in state.items() if key in target and target[key].shape == value.shape}
 
 
 def parameter_count(net: nn.Module) -> int:
