@@ -9,8 +9,10 @@ A card is a JSON file ``<name>.json`` in the model folder::
 
 Each variant is the same weights exported with another search width: ``levels`` is the
 number of disparities the network's cost volume spans, so it searches
-0 .. ``levels`` - 1 px (inclusive bound ``levels - 1``). Only ``format``, ``divisor`` and
-``variants`` are read back; the other fields document the model.
+0 .. ``levels`` - 1 px (inclusive bound ``levels - 1``). Only ``format``, ``divisor``,
+``variants`` and the optional ``chooser`` (weights of the learned choice between the
+network and the refinement's match, written by ``python -m cade_cli.train chooser``) are
+read back; the other fields document the model.
 """
 
 from __future__ import annotations
@@ -27,6 +29,9 @@ CARD_FORMAT = 2
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v4"
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v6"}
+"""``--model fast`` and ``--model accurate``: the shipped card each tier names (models/README.md
+gives both tiers' benchmark rows and speed)."""
 
 
 def model_dir() -> Path:
@@ -57,13 +62,18 @@ class ModelCard:
     name: str
     variants: tuple[ModelVariant, ...]
     divisor: int
+    chooser: dict | None = None
+    """The learned choice between the network and the refinement's match
+    (:class:`cade_cli.matching.chooser.Chooser`'s weights), when the card has one; without
+    it the refinement's fixed agreement rule decides."""
 
 
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
-    """The card of ``model``: a path to a card file (``.../cade-v6.json``), or the name of a
-    card in ``folder`` (default :func:`model_dir`)."""
+    """The card of ``model``: a path to a card file (``.../cade-v6.json``), the name of a
+    card in ``folder`` (default :func:`model_dir`), or a tier of :data:`TIERS`."""
     if str(model).endswith(".json"):
         return Path(model)
+    model = TIERS.get(str(model), model)
     return (model_dir() if folder is None else Path(folder)) / f"{model}.json"
 
 
@@ -86,7 +96,10 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
                          for v in card["variants"])
         if not variants:
             raise ValueError("no variants")
-        return ModelCard(name, variants, int(card["divisor"]))
+        chooser = card.get("chooser")
+        if chooser is not None and not isinstance(chooser, dict):
+            raise ValueError("chooser is not an object")
+        return ModelCard(name, variants, int(card["divisor"]), chooser)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

@@ -173,7 +173,7 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
     tuned = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=32, width=64,
                         levels=16, workers=0, init=str(tmp_path / "legacy.pt"))
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
-    assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8}
+    assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8, "census": False}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
 
@@ -261,3 +261,45 @@ def test_a_wider_3d_part_starts_from_a_narrower_checkpoints_2d_weights(tmp_path:
     with pytest.raises(RuntimeError):  # without --init-partial the shapes do not fit
         train(TrainConfig(out=str(tmp_path / "strict"), textures=[], steps=1, batch=1, height=32, width=64,
                           levels=16, workers=0, channels3d=16, init=str(tmp_path / "narrow.pt")))
+
+
+def test_census_cost_peaks_at_the_shift_and_ignores_monotonic_intensity_changes():
+    """A texture and its copy shifted by 8 px, the copy through an increasing tone curve:
+    the census cost of the 1/4 level is 0.5 (identical bits) at level 2 (8 px) and lower
+    at every other level."""
+    from cade_cli.train.model import census_cost
+
+    generator = torch.Generator().manual_seed(1)
+    left = torch.rand(1, 1, 32, 64, generator=generator)
+    right = torch.roll(left, -8, dims=-1) ** 3 * 2 + 0.1  # right(x - 8) = f(left(x)), f increasing
+    cost = census_cost(left, right, levels=6)
+    assert cost.shape == (1, 1, 6, 8, 16)
+    inside = cost[0, 0, :, 1:-1, 3:-3]  # away from the borders the roll wraps
+    assert torch.all(inside[2] == 0.5)
+    assert torch.all(inside[[0, 1, 3, 4, 5]].amax(dim=0) < 0.5)
+
+
+def test_a_census_net_starts_as_the_checkpoint_it_was_widened_from(tmp_path: Path):
+    """--census --init-partial: the aggregation's first kernel gains one input with zero
+    weights, so before training the net computes what the checkpoint computed; the design
+    survives export and the ONNX graph agrees with torch."""
+    from cade_cli.train.export import export_onnx, load_checkpoint
+    from cade_cli.train.model import transferable
+
+    plain = CadeNet(levels=16).eval()
+    census = CadeNet(levels=16, census=True).eval()
+    census.load_state_dict(transferable(plain.state_dict(), census))
+    left, right = torch.rand(1, 1, 32, 48), torch.rand(1, 1, 32, 48)
+    with torch.no_grad():
+        torch.testing.assert_close(census(left, right)["disparity"], plain(left, right)["disparity"])
+    torch.save({"model": plain.state_dict()}, tmp_path / "plain.pt")
+    config = TrainConfig(out=str(tmp_path / "census"), textures=[], steps=1, batch=1, height=32, width=64,
+                         levels=16, workers=0, validate_every=100, census=True, init=str(tmp_path / "plain.pt"),
+                         init_partial=True)
+    train(config)
+    trained, _ = load_checkpoint(tmp_path / "census" / "last.pt")
+    assert trained.design["census"] is True
+    assert trained.aggregation.entry[0][0].weight.shape[1] == 9  # 8 correlation groups + the census cost
+    path = tmp_path / "census.onnx"
+    export_onnx(trained.eval(), path)
+    assert verify_onnx(trained.eval(), path, sizes=((40, 56),)) < 1e-3

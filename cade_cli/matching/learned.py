@@ -6,7 +6,9 @@ bands' color-agnostic transforms) -> visibility (:func:`~cade_cli.matching.dispa
 on the network's surface: a pixel is invalid where a nearer surface lands left of it in the
 right view, or its match leaves the image) -> refinement
 (:class:`~cade_cli.matching.refinement.RankSgbmRefinement` of the raw bands, at the
-visible pixels only) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
+visible pixels only; where SGBM's match and the network disagree, the card's learned
+:class:`~cade_cli.matching.chooser.Chooser` decides which to keep, or without one the
+32 px agreement rule) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
 the network's uncertainty and whether the refinement's SGBM match agreed with it) -> the
 unfilled result (NaN where invalid; filling is the caller's stage,
 :func:`~cade_cli.matching.disparity.densify`).
@@ -19,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange, DisparityResult
+from cade_cli.matching.chooser import Chooser
 from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
 from cade_cli.matching.network import NetworkStage
@@ -51,7 +54,11 @@ class LearnedPipeline:
         valid = visible_in_right_view(network)
         disparity, agreement = network, None
         if self.refinement is not None:
-            refined, taken = self.refinement.refine(left, right, network, disparity_range)
+            weights = self.network.card().chooser  # the card's learned choice, else the 32 px rule
+            chooser = Chooser.from_dict(weights) if weights is not None else None
+            choose = None if chooser is None else (
+                lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
+            refined, taken = self.refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
             agreement = np.where(taken, np.abs(refined - network), np.float32(np.inf))
         confidence = network_confidence(uncertainty, valid, agreement=agreement) if self.confidence else None

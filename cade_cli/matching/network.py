@@ -177,6 +177,10 @@ class NetworkStage:
 
     model: str = DEFAULT_MODEL
 
+    def card(self) -> ModelCard:
+        """The model's card."""
+        return read_card(self.model)
+
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> np.ndarray:
         """(H, W) float32 disparity in px, clipped to ``disparity_range``, of the raw bands
         ``left`` against ``right`` (the network sees their CADE transforms)."""

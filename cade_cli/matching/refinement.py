@@ -10,6 +10,7 @@ transforms, and lets the result overrule the network where it is trustworthy.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -19,6 +20,11 @@ from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.classical import sgbm_matcher
 from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.network import shift_right_view
+
+Choice = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""``choose(network, match, accepted) -> taken``: which accepted matches replace the
+network's value, instead of the ``agreement`` rule (all (H, W); the disparities may be
+shifted by the range's minimum, so a chooser must depend on differences only)."""
 
 SIGN_BLUR = 31
 """Side of the box blur applied to both bands before their correlation decides whether
@@ -147,23 +153,26 @@ class RankSgbmRefinement:
         return self.refine(left, right, disparity, disparity_range)[0]
 
     def refine(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-               disparity_range: DisparityRange) -> tuple[np.ndarray, np.ndarray]:
+               disparity_range: DisparityRange, *, choose: Choice | None = None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`__call__`'s refined disparity and the (H, W) bool mask of the pixels where
-        it is SGBM's match (accepted, within ``agreement`` px of ``disparity``); elsewhere
-        it is ``disparity`` itself."""
+        it is SGBM's match (accepted, and within ``agreement`` px of ``disparity`` or where
+        ``choose`` says so); elsewhere it is ``disparity`` itself."""
         minimum = disparity_range.minimum
         refined, taken = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum,
-                                          disparity_range.span)
+                                          disparity_range.span, choose=choose)
         return (refined + minimum if minimum else refined), taken
 
     def refine_span(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                    span: int) -> tuple[np.ndarray, np.ndarray]:
+                    span: int, *, choose: Choice | None = None) -> tuple[np.ndarray, np.ndarray]:
         """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range),
         and where it took SGBM's match (as :meth:`refine`)."""
         if span < 1:  # a single disparity: nothing to choose between
             return np.asarray(disparity, np.float32), np.zeros(np.shape(disparity), bool)
         matched, accepted = self.candidate(left, right, disparity, span)
-        accepted &= np.abs(matched - disparity) <= self.agreement
+        if choose is None:
+            accepted &= np.abs(matched - disparity) <= self.agreement
+        else:
+            accepted &= choose(disparity, matched, accepted)
         return np.where(accepted, matched, disparity).astype(np.float32), accepted
 
     def candidate(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,

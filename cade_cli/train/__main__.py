@@ -49,6 +49,8 @@ def fit(
     real_share: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs cut from a real "
                                               "scene instead of rendered (needs --real-dir).")] = 0.0,
     channels3d: Annotated[int, typer.Option(min=1, help="Channels of the 3D aggregation (8: cade-v4/v6).")] = 8,
+    census: Annotated[bool, typer.Option(help="A census cost volume of the input bands beside the learned "
+                                         "correlation, into the 3D aggregation.")] = False,
     init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
                                                "(a wider 3D part starts fresh).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
@@ -67,7 +69,7 @@ def fit(
                          init=str(init) if init else None, warmup=warmup, padding=padding,
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
-                         channels3d=channels3d, init_partial=init_partial,
+                         channels3d=channels3d, init_partial=init_partial, census=census,
                          time_budget_s=time_budget)
     train(config, resume=resume)
 
@@ -114,6 +116,51 @@ def curves(
         chain[folder.name] = curve
     plot(list(chain.values()), output)
     print(f"wrote {output}")
+
+
+@app.command()
+def chooser(
+    real_dir: Annotated[Path, typer.Option(exists=True, file_okay=False, help="Real training scenes "
+                                           "(../shared/data/train-real, MiddEval3 layout): the chooser is fitted "
+                                           "on these only.")],
+    cache: Annotated[Path, typer.Option(help="Folder for the candidate caches (one npz per scene; reused).")],
+    model: Annotated[str, typer.Option(help="The network whose candidates are chosen between (card name or path).")]
+    = "cade-v4",
+    data_dir: Annotated[Path | None, typer.Option(help="Folder of the reporting sets, to score the chooser "
+                                                  "against the fixed 32 px rule.")] = None,
+    datasets: Annotated[str, typer.Option(help="Reporting sets scored with --data-dir, comma-separated.")]
+    = "middlebury14,middlebury05,kitti2015,kitti2012,flyingthings3d",
+    hidden: Annotated[int, typer.Option(min=1)] = 32,
+    steps: Annotated[int, typer.Option(min=1)] = 4000,
+    seed: int = 0,
+    write_card: Annotated[bool, typer.Option(help="Store the chooser in the model's card (the runtime then uses "
+                                             "it instead of the 32 px rule).")] = False,
+) -> None:
+    """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
+    the six cross-band and three same-band tasks of every train-real scene; print its
+    EPE / BMP3 (all pixels, as the pipeline finishes them) beside the fixed 32 px rule's."""
+    import json
+
+    from cade_cli.model_card import card_path
+    from cade_cli.train.chooser import SAME_BAND_TASKS, cache_candidates, fit, report, score
+
+    train = cache_candidates("middeval3", real_dir, cache / "train-real", model=model)
+    chosen = fit(train, hidden=hidden, steps=steps, seed=seed)
+    print(f"train-real CS: {report(score(train, chosen))}")
+    if data_dir is not None:
+        for name in datasets.split(","):
+            files = cache_candidates(name, data_dir, cache / name, model=model)
+            print(f"{name} CS: {report(score(files, chosen))}", flush=True)
+            if name.startswith("middlebury"):
+                print(f"{name} same-band: {report(score(files, chosen, SAME_BAND_TASKS))}", flush=True)
+    if write_card:
+        path = card_path(model)
+        card = json.loads(path.read_text())
+        card["chooser"] = {**chosen.to_dict(), "fitted_on": "train-real (18 scenes x 6 CS tasks)",
+                           "command": f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
+                                      f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"}
+        path.write_text(json.dumps(card, indent=2) + "\n")
+        print(f"wrote the chooser into {path}")
 
 
 if __name__ == "__main__":

@@ -57,6 +57,9 @@ class TrainConfig:
     """CadeNet's first 3D kernel size; cade-v1 … v3 were trained with 3."""
     channels3d: int = 8
     """Channels of CadeNet's 3D aggregation (8 in cade-v1 … v6; 16 for the accurate tier)."""
+    census: bool = False
+    """Feed CadeNet's aggregation a census cost volume beside the correlation (the
+    Accuracy II lever; with ``init`` and ``init_partial`` it starts as the checkpoint)."""
     init_partial: bool = False
     """With ``init``: take only the tensors whose shapes fit (:func:`transferable`), e.g. a
     wider 3D part starting fresh beside cade-v6's 2D features and refinement."""

@@ -83,12 +83,46 @@ def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, 
     return torch.stack(slices, dim=2)
 
 
+CENSUS_OFFSETS = ((-2, -2), (-2, 0), (-2, 2), (0, -2), (0, 2), (2, -2), (2, 0), (2, 2))
+"""(dy, dx) of the census comparisons: the 8 compass points at radius 2 (a sparse 5x5 census)."""
+
+
+def census_bits(band: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) -> (B, 8, H, W): 1 where the neighbour at each offset of
+    :data:`CENSUS_OFFSETS` is brighter than the pixel. Unchanged by any increasing
+    intensity map, so the same on rendered and on real bands; no gradient flows through it."""
+    height, width = band.shape[-2:]
+    padded = F.pad(band, (2, 2, 2, 2), mode="replicate")
+    return torch.cat([(padded[..., 2 + dy:2 + dy + height, 2 + dx:2 + dx + width] > band).to(band.dtype)
+                      for dy, dx in CENSUS_OFFSETS], dim=1)
+
+
+CENSUS_GAIN = 64.0
+"""The census cost is scaled by this before it meets the learned correlation: its spread
+along disparity is then about that of cade-v4's correlation (0.07 x 64 against 5.4 on
+training batches), so a zero-initialised kernel learns to weigh it at the same pace."""
+
+
+def census_cost(left: torch.Tensor, right: torch.Tensor, levels: int) -> torch.Tensor:
+    """Cost volume (B, 1, D, H/4, W/4) of the 1/4 level: 0.5 minus the mean Hamming distance
+    of the census bits of left(x) and right(x - 4d) over each 4x4 block (0.5: unrelated;
+    positive: similar). Where x - 4d falls outside the right view the cost is 0.
+    (:class:`CadeNet` multiplies it by :data:`CENSUS_GAIN`.)"""
+    bits_left, bits_right = census_bits(left), census_bits(right)
+    width = left.shape[-1]
+    shift = 4 * (levels - 1)
+    padded = F.pad(bits_right, (shift, 0), value=0.5)  # 0.5 vs a 0/1 bit: Hamming 0.5, cost 0
+    slices = [F.avg_pool2d(0.5 - (bits_left - padded[..., shift - 4 * d:shift - 4 * d + width]).abs()
+                           .mean(dim=1, keepdim=True), 4) for d in range(levels)]
+    return torch.stack(slices, dim=2)
+
+
 class Aggregation(nn.Module):
     """3D CNN over the cost volume, one hourglass level, -> logits (B, D, h, w)."""
 
-    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 1):
+    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 1, extra_inputs: int = 0):
         super().__init__()
-        self.entry = nn.Sequential(conv3d(groups, channels, kernel=entry_kernel), conv3d(channels, channels))
+        self.entry = nn.Sequential(conv3d(groups + extra_inputs, channels, kernel=entry_kernel), conv3d(channels, channels))
         self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2), conv3d(2 * channels, 2 * channels))
         self.up = nn.Sequential(nn.ConvTranspose3d(2 * channels, channels, 2, stride=2, bias=False),
                                 nn.BatchNorm3d(channels))
@@ -141,18 +175,23 @@ class CadeNet(nn.Module):
         entry_kernel: kernel size of the first 3D convolution, which mixes the
             correlation groups: 1 (cade-v4 on) or 3 (cade-v1 … v3; a quarter of the 3D
             multiply-adds).
+        census: feed the aggregation a census cost volume of the input bands
+            (:func:`census_cost`) beside the learned correlation: a cost that no
+            monotonic change of intensity alters, so identical on rendered and real data
+            (the Accuracy II lever; models/README.md says what it measured).
     """
 
     def __init__(self, levels: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
-                 refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1):
+                 refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1, census: bool = False):
         super().__init__()
         if levels % DIVISOR:
             raise ValueError(f"levels must be a multiple of {DIVISOR}, got {levels}")
         self.levels, self.groups = levels, groups
         self.coarse_levels = levels // 4
-        self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d}
+        self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d, "census": census}
+        self.census = census
         self.features = FeatureNet(features, padding)
-        self.aggregation = Aggregation(groups, channels3d, entry_kernel)
+        self.aggregation = Aggregation(groups, channels3d, entry_kernel, extra_inputs=int(census))
         self.refinement = Refinement(refine_channels, padding)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
@@ -161,7 +200,10 @@ class CadeNet(nn.Module):
         (B, 1, H, W) px."""
         both = self.features(torch.cat([left, right], dim=0))
         feat_left, feat_right = both.chunk(2, dim=0)
-        logits = self.aggregation(groupwise_correlation(feat_left, feat_right, self.coarse_levels, self.groups))
+        cost = groupwise_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
+        if self.census:
+            cost = torch.cat([cost, CENSUS_GAIN * census_cost(left, right, self.coarse_levels)], dim=1)
+        logits = self.aggregation(cost)
         probability = torch.softmax(logits, dim=1)
         levels = torch.arange(self.coarse_levels, dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
         mean = (probability * levels).sum(dim=1, keepdim=True)
@@ -199,7 +241,7 @@ class ExportWrapper(nn.Module):
         return out[self.output], out["uncertainty"]
 
 
-LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8}
+LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "census": False}
 """The design of checkpoints whose config predates the ``padding``/``entry_kernel`` keys (cade-v1 … v3)."""
 
 
@@ -223,10 +265,24 @@ def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str
 
 
 def transferable(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str, torch.Tensor]:
-    """The tensors of ``state`` that fit ``net`` as they are (same name, same shape): a
-    wider net starts from a narrower one's 2D features and refinement, its 3D part fresh."""
+    """The tensors of ``state`` that fit ``net`` (same name, same shape): a wider net starts
+    from a narrower one's 2D features and refinement, its 3D part fresh. A kernel that only
+    gained inputs (a census cost beside the correlation) keeps its weights, with zeros for
+    the new inputs: the net starts out computing exactly what the checkpoint did."""
     target = net.state_dict()
-    return {key: value for key, value in state.items() if key in target and target[key].shape == value.shape}
+    fitting = {}
+    for key, value in state.items():
+        if key not in target:
+            continue
+        shape = target[key].shape
+        if shape == value.shape:
+            fitting[key] = value
+        elif (value.dim() >= 2 and len(shape) == value.dim() and shape[0] == value.shape[0]
+              and shape[2:] == value.shape[2:] and shape[1] > value.shape[1]):
+            widened = torch.zeros(shape, dtype=value.dtype)
+            widened[:, :value.shape[1]] = value
+            fitting[key] = widened
+    return fitting
 
 
 def parameter_count(net: nn.Module) -> int:

@@ -1,0 +1,129 @@
+"""A learned choice between the network's disparity and the rank-SGBM match, per pixel.
+
+:class:`~cade_cli.matching.refinement.RankSgbmRefinement` takes SGBM's match wherever SGBM
+accepted it and it lies within a fixed 32 px of the network's value. :class:`Chooser`
+replaces that rule by a small per-pixel perceptron over features both candidates give
+(their difference, the network's uncertainty, how much the neighbourhood agrees, how
+speckled each map is, how much texture the band has); it is fitted on real training
+scenes by ``python -m cade_cli.train chooser`` (the Accuracy II lever; the model card in
+models/README.md records what it measured).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+FEATURES = (
+    "difference", "signed_difference", "log_difference", "uncertainty", "accepted_share", "candidate_spread", "candidate_speckle",
+    "network_spread", "texture", "agreement_near", "agreement_wide", "bias",
+)
+"""The per-pixel inputs of the chooser, in order (:func:`chooser_features`)."""
+AGREE = 1.0
+"""Where SGBM's accepted match lies within this many px of the network's value, it is taken
+without asking the chooser (the two agree; the match is the sharper, sub-pixel one): the
+chooser decides only the disputed pixels, a third of the accepted ones on Middlebury."""
+
+
+def _box(image: np.ndarray, side: int) -> np.ndarray:
+    return cv2.blur(image.astype(np.float32), (side, side), borderType=cv2.BORDER_REFLECT)
+
+
+def _spread(image: np.ndarray, side: int) -> np.ndarray:
+    mean = _box(image, side)
+    return np.sqrt(np.maximum(_box(image * image, side) - mean * mean, 0))
+
+
+def disputed(network: np.ndarray, candidate: np.ndarray, accepted: np.ndarray) -> np.ndarray:
+    """(H, W) bool: accepted matches more than :data:`AGREE` px from the network's value."""
+    return accepted.astype(bool) & (np.abs(candidate - network) > AGREE)
+
+
+def chooser_features(left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
+                     accepted: np.ndarray, *, where: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, len(FEATURES)) float32 features of each pixel (:data:`FEATURES`), or
+    (N, len(FEATURES)) of the N pixels of the (H, W) bool mask ``where``.
+
+    Args:
+        left: (H, W) raw left band, any units (only its local contrast relative to its
+            image-wide spread is used).
+        network, uncertainty: the network's (H, W) disparity and uncertainty, px.
+        candidate, accepted: SGBM's (H, W) match (px) and where SGBM accepted it.
+    """
+    accepted = accepted.astype(bool)
+    difference = np.where(accepted, np.abs(candidate - network), 0).astype(np.float32)
+    agree = (accepted & (difference <= 3)).astype(np.float32)
+    held = np.where(accepted, candidate, network).astype(np.float32)
+    band = left.astype(np.float32)
+    texture = _spread(band, 7) / max(float(band.std()), 1e-6)
+    planes = [
+        np.minimum(difference, 64) / 32,
+        np.clip(np.where(accepted, candidate - network, 0), -64, 64) / 32,
+        np.log1p(difference),
+        np.minimum(uncertainty, 32) / 8,
+        _box(accepted, 9),
+        np.minimum(_spread(held, 5), 32) / 8,
+        np.minimum(np.abs(held - cv2.medianBlur(held, 5)), 32) / 8,
+        np.minimum(_spread(network, 5), 32) / 8,
+        np.minimum(texture, 4),
+        _box(agree, 9),
+        _box(agree, 31),
+        np.ones_like(band),
+    ]
+    if where is None:
+        return np.stack(planes, axis=-1).astype(np.float32)
+    index = np.flatnonzero(where)
+    features = np.empty((index.size, len(planes)), np.float32)
+    for column, plane in enumerate(planes):
+        features[:, column] = np.asarray(plane, np.float32).ravel()[index]
+    return features
+
+
+@dataclass(frozen=True)
+class Chooser:
+    """A one-hidden-layer perceptron: P(SGBM's match is the better one) per pixel.
+
+    Attributes:
+        hidden: (len(FEATURES), n) weights of the hidden layer (its bias is the last feature).
+        output: (n + 1,) weights of the output (last: bias).
+        threshold: the match is taken where the probability exceeds this.
+    """
+
+    hidden: np.ndarray
+    output: np.ndarray
+    threshold: float = 0.5
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "Chooser":
+        return cls(np.asarray(values["hidden"], np.float32), np.asarray(values["output"], np.float32),
+                   float(values.get("threshold", 0.5)))
+
+    def to_dict(self) -> dict:
+        return {"features": list(FEATURES), "hidden": self.hidden.tolist(), "output": self.output.tolist(),
+                "threshold": self.threshold}
+
+    def probability(self, features: np.ndarray) -> np.ndarray:
+        """float32 probability from features (..., F): one per pixel.
+
+        The products are OpenCV's ``gemm``, not NumPy's ``@``: a BLAS call leaves
+        OpenBLAS's threads busy-waiting on the cores the next pair's network and SGBM need
+        (:func:`cade_cli.matching.refinement.correlation` says the same)."""
+        count = features.shape[-1]
+        flat = np.ascontiguousarray(features.reshape(-1, count), np.float32)
+        if flat.shape[0] == 0:
+            return np.zeros(features.shape[:-1], np.float32)
+        hidden = np.maximum(cv2.gemm(flat, self.hidden, 1.0, None, 0.0), 0)
+        logits = cv2.gemm(hidden, self.output[:-1, None], 1.0, None, 0.0)[:, 0] + self.output[-1]
+        return (1 / (1 + np.exp(-np.clip(logits, -30, 30)))).reshape(features.shape[:-1]).astype(np.float32)
+
+    def take(self, left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
+             accepted: np.ndarray) -> np.ndarray:
+        """(H, W) bool: where SGBM's accepted match replaces the network's value: where
+        the two agree, and at the :func:`disputed` pixels the chooser gives to SGBM."""
+        taken = accepted.astype(bool).copy()
+        asked = disputed(network, candidate, accepted)
+        features = chooser_features(left, network, uncertainty, candidate, accepted, where=asked)
+        taken[asked] = self.probability(features) > self.threshold
+        return taken

@@ -1,0 +1,155 @@
+"""Fit the learned chooser (:class:`cade_cli.matching.chooser.Chooser`) and score it.
+
+:func:`cache_candidates` stores the cade matcher's two candidates per scene and CS task
+(the network's map and uncertainty, SGBM's match of the rank images and where SGBM
+accepted it, the left band, the GT). The chooser is fitted on the train-real caches only
+and scored on the reporting sets' caches against the fixed 32 px rule and the oracle (the
+better of the two candidates per pixel). The fit weighs each pixel by how much the choice
+matters: a pixel where one candidate is within 3 px of the truth and the other is not
+counts most. Only the pixels the pipeline asks the chooser about are fitted on: disputed
+(:func:`~cade_cli.matching.chooser.disputed`) and visible in the right view (elsewhere
+the pipeline marks the pixel invalid and fills it). Which of these choices to keep was
+decided by 3-fold cross-validation over the train-real scenes, never on a reporting set. ``python -m cade_cli.train chooser`` runs it all and can write the chooser
+into the model's card, where the runtime finds it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cade_cli.data import get_dataset
+from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
+from cade_cli.evaluation.protocols import get_protocol
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.disparity import densify, visible_in_right_view
+from cade_cli.matching.network import NetworkStage
+from cade_cli.matching.refinement import RankSgbmRefinement
+
+BAD = 3.0
+AGREEMENT = 32.0
+
+
+PROTOCOLS = ("cs", "rgb")
+"""The tasks cached per scene: the six cross-band pairs and the three same-band ones."""
+CS_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("cs").tasks)
+SAME_BAND_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("rgb").tasks)
+
+
+def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str) -> list[Path]:
+    """One npz per scene of ``dataset`` in ``out`` (kept when it exists), the candidates of
+    ``model``'s network and the rank-SGBM refinement for every task of :data:`PROTOCOLS`;
+    returns the files."""
+    out.mkdir(parents=True, exist_ok=True)
+    network, refinement = NetworkStage(model=model), RankSgbmRefinement()
+    files = []
+    for scene in get_dataset(dataset)(data_dir):
+        target = out / f"{scene.name.replace('/', '-')}.npz"
+        files.append(target)
+        if target.exists():
+            continue
+        stored = {"gt": scene.disparity.astype(np.float32)}
+        for task in (task for protocol in PROTOCOLS for task in get_protocol(protocol).tasks):
+            left, right = task.bands(scene.left, scene.right)
+            estimate = network.estimate(left, right, DisparityRange(0, scene.max_disp))
+            candidate, accepted = refinement.candidate(left, right, estimate.disparity, scene.max_disp)
+            key = task.name.replace(">", "")
+            stored.update({f"{key}_network": estimate.disparity, f"{key}_uncertainty": estimate.uncertainty,
+                           f"{key}_candidate": candidate, f"{key}_accepted": accepted, f"{key}_left": left})
+        np.savez_compressed(target, **stored)
+        print(f"cached {dataset} {scene.name}", flush=True)
+    return files
+
+
+def tasks_of(cache: Path, tasks: tuple[str, ...] | None = None):
+    """(gt, {key: array}) per task of one cached scene (those named in ``tasks``, e.g. "RB")."""
+    stored = np.load(cache)
+    gt = stored["gt"]
+    prefixes = sorted({key.split("_")[0] for key in stored.files if key != "gt"})
+    for prefix in prefixes:
+        if tasks is not None and prefix not in tasks:
+            continue
+        yield gt, {name: stored[f"{prefix}_{name}"] for name in ("network", "uncertainty", "candidate", "accepted", "left")}
+
+
+def features_of(task: dict) -> np.ndarray:
+    return chooser_features(task["left"], task["network"], task["uncertainty"], task["candidate"], task["accepted"])
+
+
+def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000, tasks: tuple[str, ...] | None = None):
+    xs, ys, ws = [], [], []
+    for cache in caches:
+        for gt, task in tasks_of(cache, tasks):
+            features = features_of(task)
+            usable = disputed(task["network"], task["candidate"], task["accepted"]) & np.isfinite(gt)
+            usable &= visible_in_right_view(task["network"])  # the pipeline decides there only
+            rows, cols = np.nonzero(usable)
+            if len(rows) == 0:
+                continue
+            pick = rng.choice(len(rows), size=min(per_task, len(rows)), replace=False)
+            rows, cols = rows[pick], cols[pick]
+            error_network = np.abs(task["network"][rows, cols] - gt[rows, cols])
+            error_candidate = np.abs(task["candidate"][rows, cols] - gt[rows, cols])
+            label = (error_candidate < error_network).astype(np.float32)
+            decisive = (error_candidate <= BAD) != (error_network <= BAD)
+            weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
+            xs.append(features[rows, cols]), ys.append(label), ws.append(weight.astype(np.float32))
+    return np.concatenate(xs), np.concatenate(ys), np.concatenate(ws)
+
+
+def fit(caches: list[Path], *, hidden: int = 16, steps: int = 3000, seed: int = 0,
+        tasks: tuple[str, ...] | None = None) -> Chooser:
+    """The chooser fitted on the disputed, visible pixels of ``tasks`` (default: every
+    cached task) of ``caches``."""
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    x, y, w = (torch.from_numpy(a) for a in samples(caches, rng, tasks=tasks))
+    first = torch.nn.Linear(len(FEATURES), hidden, bias=False)  # the bias is the last feature
+    second = torch.nn.Linear(hidden, 1)
+    optimizer = torch.optim.Adam([*first.parameters(), *second.parameters()], lr=1e-2)
+    for step in range(steps):
+        batch = torch.randint(0, len(x), (8192,))
+        logits = second(torch.relu(first(x[batch]))).squeeze(1)
+        loss = (torch.nn.functional.binary_cross_entropy_with_logits(logits, y[batch], reduction="none")
+                * w[batch]).sum() / w[batch].sum()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        if step % 500 == 0:
+            print(f"chooser step {step} loss {loss.item():.4f}", flush=True)
+    with torch.no_grad():
+        output = torch.cat([second.weight[0], second.bias]).numpy()
+        return Chooser(first.weight.T.numpy().copy(), output.copy())
+
+
+def score(caches: list[Path], chooser: Chooser | None, tasks: tuple[str, ...] | None = CS_TASKS
+          ) -> dict[str, tuple[float, float]]:
+    """Mean over scenes of the mean over tasks: EPE / BMP3 (all GT pixels) of the network,
+    the fixed rule, the chooser and the oracle, each as the pipeline finishes it (invalid
+    where the network's surface is hidden in the right view, then filled along rows)."""
+    per_scene = []
+    for cache in caches:
+        rows = []
+        for gt, task in tasks_of(cache, tasks):
+            network, candidate, accepted = task["network"], task["candidate"], task["accepted"]
+            everywhere = np.ones(gt.shape, bool)
+            maps = {"network": network,
+                    "fixed": np.where(accepted & (np.abs(candidate - network) <= AGREEMENT), candidate, network)}
+            if chooser is not None:
+                taken = chooser.take(task["left"], network, task["uncertainty"], candidate, accepted)
+                maps["learned"] = np.where(taken, candidate, network)
+            better = np.abs(candidate - gt) < np.abs(network - gt)
+            maps["oracle"] = np.where(accepted & better, candidate, network)
+            valid = visible_in_right_view(network)
+            maps = {name: densify(np.where(valid, m, np.float32(np.nan)), valid) for name, m in maps.items()}
+            rows.append({name: (end_point_error(m, gt, everywhere), bad_pixel_rate(m, gt, everywhere, threshold=BAD))
+                         for name, m in maps.items()})
+        per_scene.append({name: tuple(np.mean([r[name][i] for r in rows]) for i in range(2)) for name in rows[0]})
+    return {name: tuple(float(np.mean([s[name][i] for s in per_scene])) for i in range(2)) for name in per_scene[0]}
+
+
+def report(result: dict[str, tuple[float, float]]) -> str:
+    return ", ".join(f"{name} {epe:.3f} / {bmp:.2f}" for name, (epe, bmp) in result.items())

@@ -1,0 +1,144 @@
+"""The learned choice between the network's disparity and the rank-SGBM match."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.chooser import AGREE, FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.learned import LearnedPipeline
+from cade_cli.matching.network import NetworkStage
+from cade_cli.matching.refinement import RankSgbmRefinement
+from cade_cli.model_card import card_path, read_card
+from synthetic import render_pair
+
+
+def candidates(seed: int = 0, shape: tuple[int, int] = (48, 64)):
+    rng = np.random.default_rng(seed)
+    network = rng.uniform(0, 40, shape).astype(np.float32)
+    candidate = (network + rng.normal(0, 8, shape)).astype(np.float32)
+    return (rng.random(shape).astype(np.float32), network, rng.uniform(0, 5, shape).astype(np.float32),
+            candidate, rng.random(shape) < 0.7)
+
+
+def constant_chooser(bias: float) -> Chooser:
+    return Chooser(np.zeros((len(FEATURES), 4), np.float32), np.array([0, 0, 0, 0, bias], np.float32))
+
+
+def test_features_depend_on_differences_only_so_a_shifted_range_changes_nothing():
+    left, network, uncertainty, candidate, accepted = candidates()
+    features = chooser_features(left, network, uncertainty, candidate, accepted)
+    shifted = chooser_features(left, network - 12, uncertainty, candidate - 12, accepted)
+    assert features.shape == (48, 64, len(FEATURES)) and features.dtype == np.float32
+    assert np.all(np.isfinite(features))
+    np.testing.assert_allclose(features, shifted, atol=1e-4)
+
+
+def test_a_rejected_match_is_never_taken():
+    left, network, uncertainty, candidate, accepted = candidates(1)
+    rng = np.random.default_rng(2)
+    chooser = Chooser(rng.normal(size=(len(FEATURES), 8)).astype(np.float32),
+                      rng.normal(size=9).astype(np.float32))
+    taken = chooser.take(left, network, uncertainty, candidate, accepted)
+    assert not np.any(taken & ~accepted)
+    asked = disputed(network, candidate, accepted)
+    assert 0 < asked.sum() < accepted.sum()
+    assert np.all(constant_chooser(30).take(left, network, uncertainty, candidate, accepted) == accepted)
+    # a chooser that gives nothing to SGBM still takes the matches that agree within AGREE px
+    never = constant_chooser(-30).take(left, network, uncertainty, candidate, accepted)
+    assert np.all(never == (accepted & ~asked))
+    assert np.all(np.abs(candidate - network)[never] <= AGREE)
+
+
+def test_features_of_a_mask_are_those_pixels_of_the_full_map():
+    left, network, uncertainty, candidate, accepted = candidates(6)
+    full = chooser_features(left, network, uncertainty, candidate, accepted)
+    asked = disputed(network, candidate, accepted)
+    np.testing.assert_array_equal(chooser_features(left, network, uncertainty, candidate, accepted, where=asked),
+                                  full[asked])
+
+
+def test_the_weights_round_trip_through_a_card_dict():
+    rng = np.random.default_rng(3)
+    chooser = Chooser(rng.normal(size=(len(FEATURES), 5)).astype(np.float32), rng.normal(size=6).astype(np.float32))
+    again = Chooser.from_dict(json.loads(json.dumps(chooser.to_dict())))
+    features = rng.random((4, 5, len(FEATURES))).astype(np.float32)
+    np.testing.assert_allclose(again.probability(features), chooser.probability(features), atol=1e-6)
+
+
+def model_with_chooser(folder: Path, bias: float) -> Path:
+    """A copy of the shipped card in ``folder`` (its ONNX files linked) whose chooser
+    always (bias > 0) or never (bias < 0) takes the accepted match."""
+    shipped = card_path()
+    card = json.loads(shipped.read_text())
+    for variant in card["variants"]:
+        (folder / variant["file"]).symlink_to(shipped.parent / variant["file"])
+    card["chooser"] = constant_chooser(bias).to_dict()
+    path = folder / "chooser-test.json"
+    path.write_text(json.dumps(card))
+    return path
+
+
+@pytest.mark.parametrize("bias", [30.0, -30.0])
+def test_the_pipeline_uses_the_cards_chooser_instead_of_the_32_px_rule(tmp_path: Path, bias: float):
+    """A chooser that never gives a disputed pixel to SGBM leaves the network's value
+    wherever the match lies more than AGREE px away; one that always does takes SGBM's
+    accepted match wherever it exists, however far from the network's."""
+    pair = render_pair(np.random.default_rng(4), (64, 128), background=(6.0, 0.0), foreground=(20.0, 0.0))
+    disparity_range = DisparityRange(0, 31)
+    path = model_with_chooser(tmp_path, bias)
+    assert read_card(path).chooser is not None
+    stage = NetworkStage(model=str(path))
+    result = LearnedPipeline(network=stage)(pair.left, pair.right, disparity_range)
+    network = stage(pair.left, pair.right, disparity_range)
+    match, accepted = RankSgbmRefinement().candidate(pair.left, pair.right, network, 31)
+    taken = accepted if bias > 0 else accepted & (np.abs(match - network) <= AGREE)
+    expected = np.where(taken, np.clip(match, 0, 31), network)
+    np.testing.assert_allclose(result.disparity[result.valid], expected[result.valid], atol=1e-5)
+
+
+def test_fitting_learns_which_candidate_to_trust(tmp_path: Path):
+    """Synthetic caches: SGBM's match is right where it lies within 4 px of the network's
+    value and wrong (by 20 px) elsewhere, and the network is off by 5 px everywhere. The
+    fitted chooser must take the near matches and leave the far ones."""
+    pytest.importorskip("torch")
+    from cade_cli.train.chooser import fit
+
+    rng = np.random.default_rng(5)
+    shape = (40, 60)
+    for index in range(3):
+        gt = rng.uniform(5, 50, shape).astype(np.float32)
+        network = gt + 5
+        near = rng.random(shape) < 0.5
+        candidate = np.where(near, gt + rng.normal(0, 0.3, shape), gt + 25).astype(np.float32)
+        np.savez(tmp_path / f"scene{index}.npz", gt=gt, RB_network=network,
+                 RB_uncertainty=np.ones(shape, np.float32), RB_candidate=candidate,
+                 RB_accepted=np.ones(shape, bool), RB_left=rng.random(shape).astype(np.float32))
+    chooser = fit(sorted(tmp_path.glob("*.npz")), hidden=8, steps=300)
+    gt = rng.uniform(5, 50, shape).astype(np.float32)
+    near = rng.random(shape) < 0.5
+    candidate = np.where(near, gt, gt + 25).astype(np.float32)
+    taken = chooser.take(rng.random(shape).astype(np.float32), gt + 5, np.ones(shape, np.float32), candidate,
+                         np.ones(shape, bool))
+    assert (taken == near).mean() > 0.95
+
+
+def test_both_tiers_name_shipped_cards_whose_choosers_load():
+    """--model fast / accurate: each tier's card is shipped, its files verify, and its
+    chooser (fitted by `python -m cade_cli.train chooser`) has the runtime's features."""
+    from cade_cli.matching.network import onnx_session
+    from cade_cli.model_card import DEFAULT_MODEL, TIERS
+
+    assert TIERS["fast"] == DEFAULT_MODEL
+    for tier, name in TIERS.items():
+        card = read_card(tier)
+        assert card.name == name
+        for variant in card.variants:
+            onnx_session(variant.path, variant.sha256)
+        assert card.chooser is not None and card.chooser["features"] == list(FEATURES)
+        chooser = Chooser.from_dict(card.chooser)
+        assert chooser.hidden.shape[0] == len(FEATURES) and chooser.output.shape == (chooser.hidden.shape[1] + 1,)
