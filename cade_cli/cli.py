@@ -72,11 +72,21 @@ MaxDispOption = Annotated[
 MinDispOption = Annotated[
     int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
 ]
+MaxDispAutoOption = Annotated[
+    Optional[str],
+    typer.Option("--max-disp", help="Largest disparity searched, px, or 'auto': estimated from a coarse match of the "
+                 "pair, with a margin (docs/scale.md). Default: a quarter of the width."),
+]
+MinDispAutoOption = Annotated[
+    str, typer.Option("--min-disp", help="Smallest disparity searched, px (negative for pairs registered to a plane), "
+                      "or 'auto': estimated like --max-disp auto, and possibly negative.")
+]
 ModelOption = Annotated[
     Optional[str],
-    typer.Option("--model", help="Network of the learned methods: the path of a model card (.json, its ONNX files "
-                 "beside it, as `python -m cade_cli.train export` writes them) or a card name in the model folder "
-                 "($CADE_MODEL_DIR, default the shipped models/). Default: the shipped cade-v4."),
+    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default, cade-v4) or accurate "
+                 "(cade-v6: fewer gross errors on most benchmark sets, same speed; models/README.md), the path of a "
+                 "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
+                 "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
 ]
 PreprocessOption = Annotated[
     str,
@@ -98,8 +108,8 @@ def disparity(
     right: Annotated[Path, typer.Argument(help="Other (right) image, possibly another band.", show_default=False)],
     output: Annotated[Path, typer.Option("--output", "-o", help="Disparity file: .pfm, .tif, .png (KITTI uint16) or .npy.")],
     method: MethodOption = DEFAULT_METHOD,
-    max_disp: MaxDispOption = None,
-    min_disp: MinDispOption = 0,
+    max_disp: MaxDispAutoOption = None,
+    min_disp: MinDispAutoOption = "0",
     preprocess: PreprocessOption = "auto",
     model: ModelOption = None,
     vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
@@ -118,6 +128,22 @@ def disparity(
                                      "higher = more trusted, 0 = rejected; keep pixels above a threshold to mask what "
                                      "the matcher is unsure of (README: what each method measures).")
     ] = None,
+    rig_file: Annotated[
+        Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): LEFT is its reference camera's "
+                                     "image, RIGHT another camera's; the pair is rectified first (docs/rigs.md).")
+    ] = None,
+    camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took RIGHT (default: "
+                                                  "the rig's rectified pair, else the first other camera).")] = None,
+    frame: Annotated[
+        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
+                          "the 'original' one (disparity stays in rectified px).")
+    ] = "rectified",
+    depth: Annotated[Optional[Path], typer.Option("--depth", help="With --rig: also write depth, float32 TIFF, "
+                                                  "metres, NaN unknown.")] = None,
+    points: Annotated[Optional[Path], typer.Option("--points", help="With --rig: also write a point cloud (binary "
+                                                   "PLY, metres, reference camera frame, grey from LEFT).")] = None,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
+                                               "roll the rectification self-check measures before matching.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.disparity_io import (
@@ -134,6 +160,9 @@ def disparity(
 
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
+    min_disp, max_disp = _parse_range_options(min_disp, max_disp)
+    if rig_file is not None and "auto" in (min_disp, max_disp):
+        raise CadeError("--min-disp/--max-disp auto do not work with --rig yet; give the range in rectified px")
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
     if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
         raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
@@ -148,9 +177,22 @@ def disparity(
         raise CadeError(f"--vis and --validity both name {vis}; give them different names")
     if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
         raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
+    rig_only = [option for option, given in (("--camera", camera is not None), ("--frame", frame != "rectified"),
+                ("--depth", depth is not None), ("--points", points is not None), ("--fix-vertical", fix_vertical))
+                if given]
+    if rig_file is not None:
+        _disparity_with_rig(
+            rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
+            fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+            model=model, vis=vis, left_band=left_band, right_band=right_band, fill=fill, validity=validity,
+            confidence=confidence)
+        return
+    if rig_only:
+        raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
+                        f"RIG.json or drop {rig_only[0]}")
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
-    max_disp = _resolve_max_disp(max_disp, left_image.shape[1])
+    min_disp, max_disp = _resolve_range_options(min_disp, max_disp, left_image, right_image)
     result = estimate_disparity(
         left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
         model=model,
@@ -175,6 +217,68 @@ def disparity(
         f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
         f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
     )
+
+
+def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path, camera, frame, depth, points,
+                        fix_vertical, method, max_disp, min_disp, preprocess, model, vis, left_band, right_band, fill,
+                        validity, confidence) -> None:
+    """`cade disparity --rig`: rectify LEFT/RIGHT through the rig, check, match, write in the chosen frame."""
+    import numpy as np
+
+    from cade_cli.atomic import atomic_outputs
+    from cade_cli.disparity_io import write_disparity, write_validity, write_visualization
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import get_matcher
+    from cade_cli.rectification import FRAMES, check_image_size, in_frame, rectification_of, rig_disparity, write_ply
+    from cade_cli.rig import load_rig
+
+    if frame not in FRAMES:
+        raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
+    inputs = (left, right, rig_file)
+    for option, path, suffixes in (("--depth", depth, (".tif", ".tiff")), ("--points", points, (".ply",))):
+        if path is not None:
+            _check_output(path, suffixes=suffixes, inputs=inputs)
+    get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before any work
+    rig = load_rig(rig_file)
+    other = camera if camera is not None or rig.rectification is None else rig.rectification.cameras[1]
+    rectification = rectification_of(rig, other)
+    left_image, right_image = _read_pair(left, right, left_band, right_band)
+    for name, image, path in zip(rectification.cameras, (left_image, right_image), (left, right)):
+        check_image_size(rig, name, image, path=path)
+    started = time.perf_counter()
+    width = rectification.image_size[0]
+    max_disp = _resolve_max_disp(max_disp, width)
+    found = rig_disparity(rig, left_image, right_image, other=other, fix_vertical=fix_vertical, method=method,
+                          max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model)
+    seconds = time.perf_counter() - started
+    if found.misalignment is not None:
+        _report_misalignment(found.misalignment, width, fixed=fix_vertical, corrected=found.corrected)
+    else:
+        _warn(f"rectification self-check skipped: {found.self_check_problem}")
+    _warn_if_textureless(left, right, found.left, found.right)
+    framed = in_frame(found, rig, frame=frame, fill=fill == "row")
+    if confidence is not None and framed.confidence is None:
+        raise CadeError(f"method {method} gives no confidence; drop --confidence")
+    with atomic_outputs([output, vis, validity, confidence, depth, points]) as staged:
+        write_disparity(staged[output], framed.dense if fill == "row" else framed.disparity)
+        if vis is not None:
+            write_visualization(staged[vis], framed.disparity)
+        if validity is not None:
+            write_validity(staged[validity], framed.valid)
+        if confidence is not None:
+            write_disparity(staged[confidence], framed.confidence)
+        if depth is not None:
+            write_disparity(staged[depth], framed.depth)  # float32 TIFF, NaN where unknown
+        if points is not None:
+            written = write_ply(staged[points], framed.points, framed.colours)
+    height, width = framed.dense.shape
+    known = framed.dense[framed.valid] if framed.valid.any() else framed.dense[:1] * 0
+    print(f"{output}: {width}x{height} ({frame} frame of {rectification.cameras[0]}; rectified "
+          f"{rectification.cameras[0]}-{rectification.cameras[1]}, focal {rectification.focal:.1f} px, baseline "
+          f"{rectification.baseline:.4g} m), {method}+{get_matcher(method).resolve_preprocess(preprocess)}, searched "
+          f"[{min_disp}, {max_disp}], disparity {float(np.nanmin(known)):.2f}..{float(np.nanmax(known)):.2f} px, "
+          f"valid {100.0 * framed.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
+          + (f"; {written} points in {points}" if points is not None else ""))
 
 
 @app.command()
@@ -254,6 +358,159 @@ def register(
     write_registration(output, result)
     height, width = result.reference.shape
     print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")
+
+
+@app.command()
+def calibrate(
+    camera: Annotated[
+        list[str], typer.Option("--camera", "-c", help="NAME:BAND:PATTERN, once per camera, e.g. "
+                                "--camera 'left:bp400:calib/left*.png' (quote the pattern). The first camera is the "
+                                "reference unless --reference names another. Views are paired across cameras by the "
+                                "last number in the file names (left07 with right07); names without numbers pair by "
+                                "sorted order.", show_default=False)
+    ],
+    board: Annotated[str, typer.Option("--board", help="chessboard:COLSxROWS (inner corners, e.g. chessboard:9x6) or "
+                                       "charuco:COLSxROWS (squares, e.g. charuco:11x8).", show_default=False)],
+    square: Annotated[float, typer.Option("--square", help="Side of a board square, metres (the unit of every "
+                                          "translation and depth that follows).", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Rig file to write (.json).")],
+    marker: Annotated[Optional[float], typer.Option("--marker", help="ChArUco: side of a marker, metres (default "
+                                                    "0.75 x --square).")] = None,
+    dictionary: Annotated[str, typer.Option("--dictionary", help="ChArUco: the ArUco dictionary.")] = "DICT_5X5_100",
+    reference: Annotated[Optional[str], typer.Option("--reference", help="Reference camera (default: the first).")] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a picture of the detections of each view "
+                                                "to this folder (CAMERA_VIEW.png; a red frame: board not found, "
+                                                "orange: found but the view was left out).")] = None,
+) -> None:
+    """Calibrate two or more cameras from pictures of a chessboard or ChArUco board and write a rig file."""
+    import glob
+
+    import cv2
+
+    from cade_cli.atomic import atomic_outputs
+    from cade_cli.calibration import CameraImages, calibrate_rig, draw_detection, parse_board
+    from cade_cli.errors import CadeError
+    from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES, read_band
+    from cade_cli.rig import save_rig
+
+    _check_output(output, suffixes=(".json",), inputs=())
+    chosen = parse_board(board, square=square, marker=marker, dictionary=dictionary)
+    cameras = []
+    for spec in camera:
+        parts = spec.split(":", 2)
+        if len(parts) != 3 or not all(parts):
+            raise CadeError(f"--camera {spec!r} not understood; write NAME:BAND:PATTERN, e.g. 'left:bp400:left*.png'")
+        name, band, pattern = parts
+        files = tuple(Path(p) for p in sorted(glob.glob(pattern))
+                      if Path(p).suffix.lower() in SUPPORTED_IMAGE_SUFFIXES and Path(p).is_file())
+        if not files:
+            raise CadeError(f"camera {name}: {pattern!r} matches no image file; check the pattern (relative to "
+                            f"{Path.cwd()})")
+        cameras.append(CameraImages(name, band, files))
+    with atomic_outputs([output], folders=[vis]) as staged:
+        found = calibrate_rig(cameras, chosen, reference=reference)
+        rig = found.rig
+        for note in found.notes:
+            _note(note)
+        if vis is not None:
+            for key, files in found.views:
+                for name, path in files.items():
+                    picture = draw_detection(read_band(path)[0], chosen, found.detections[name].get(key),
+                                             left_out=key in found.left_out[name])
+                    cv2.imwrite(str(staged[vis] / f"{name}_{key}.png"), picture)
+        save_rig(rig, staged[output])
+    names = rig.names
+    print("view  " + "  ".join(f"{name:>12}" for name in names) + "   (reprojection error, px)")
+    for view in rig.calibration.views:
+        print(f"{view['view']:<5} " + "  ".join(f"{view['errors'][n]:12.3f}" if n in view["errors"] else f"{'-':>12}"
+                                                 for n in names))
+    rectification = rig.rectification
+    print(f"{output}: {len(names)} cameras ({', '.join(f'{c.name} {c.band}' for c in rig.cameras)}), reference "
+          f"{rig.reference}; {len(rig.calibration.views)} views used, {len(rig.calibration.rejected)} left out; "
+          f"RMS {rig.calibration.rms:.3f} px (cameras: "
+          + ", ".join(f"{n} {v:.3f}" for n, v in rig.calibration.camera_rms.items())
+          + f"); rectified {rectification.cameras[0]}-{rectification.cameras[1]}: focal {rectification.focal:.1f} px, "
+          f"baseline {rectification.baseline:.4g} m")
+
+
+@app.command()
+def rectify(
+    rig_file: Annotated[Path, typer.Argument(metavar="RIG", help="Rig file (`cade calibrate` writes one).", show_default=False)],
+    left: Annotated[Path, typer.Argument(help="Image of the rig's reference camera.", show_default=False)],
+    right: Annotated[Path, typer.Argument(help="Image of the other camera.", show_default=False)],
+    output: Annotated[tuple[Path, Path], typer.Option("--output", "-o", help="The rectified left and right image: "
+                                                      ".png (8 bits) or .tif (float32).", show_default=False)],
+    camera: Annotated[Optional[str], typer.Option("--camera", help="The rig's camera that took RIGHT (default: the "
+                                                  "one in the rig's rectification, else the first other camera).")] = None,
+    epipolar: Annotated[Optional[Path], typer.Option("--epipolar", help="Also write the pair side by side with "
+                                                     "horizontal lines (PNG).")] = None,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll the "
+                                               "self-check measures in the rectified right image.")] = False,
+) -> None:
+    """Rectify a pair of a rig's cameras (reference = left) and check the result's vertical alignment."""
+    import cv2
+
+    from cade_cli.atomic import atomic_outputs
+    from cade_cli.imageio import load_image
+    from cade_cli.rectification import (
+        MIN_CORRECTION_PX, RECTIFIED_IMAGE_SUFFIXES, check_image_size, correct_vertical_misalignment,
+        epipolar_picture, luminance_of, measure_vertical_misalignment, rectification_of, rectify_pair,
+        write_rectified_image,
+    )
+    from cade_cli.errors import CadeError
+    from cade_cli.rig import load_rig
+
+    for path in output:
+        _check_output(path, suffixes=RECTIFIED_IMAGE_SUFFIXES, inputs=(left, right, rig_file))
+    if epipolar is not None:
+        _check_output(epipolar, suffixes=(".png",), inputs=(left, right, rig_file))
+    rig = load_rig(rig_file)
+    other = camera if camera is not None or rig.rectification is None else rig.rectification.cameras[1]
+    rectification = rectification_of(rig, other)
+    images = [load_image(path) for path in (left, right)]
+    for name, image, path in zip(rectification.cameras, images, (left, right)):
+        check_image_size(rig, name, image, path=path)
+    left_rect, right_rect = rectify_pair(rig, *images, rectification=rectification)
+    try:
+        found = measure_vertical_misalignment(luminance_of(left_rect), luminance_of(right_rect))
+    except CadeError as error:
+        if fix_vertical:
+            raise
+        found = None
+        _warn(f"self-check skipped: {str(error).split(';')[0]}")
+    if found is not None:
+        corrected = fix_vertical and found.worst(left_rect.shape[1]) >= MIN_CORRECTION_PX  # as align_vertically
+        _report_misalignment(found, left_rect.shape[1], fixed=fix_vertical, corrected=corrected)
+        if corrected:
+            right_rect = correct_vertical_misalignment(right_rect, found)
+    with atomic_outputs([*output, epipolar]) as staged:
+        write_rectified_image(staged[output[0]], left_rect)
+        write_rectified_image(staged[output[1]], right_rect)
+        if epipolar is not None:
+            cv2.imwrite(str(staged[epipolar]), epipolar_picture(left_rect, right_rect))
+    width, height = rectification.image_size
+    print(f"{output[0]}, {output[1]}: {rectification.cameras[0]}-{rectification.cameras[1]} rectified to "
+          f"{width}x{height}, focal {rectification.focal:.1f} px, baseline {rectification.baseline:.4g} m")
+
+
+def _report_misalignment(found, width: int, *, fixed: bool, corrected: bool) -> None:
+    """Tell the user what the rectification self-check measured (a warning above the tolerance)."""
+    import math
+
+    from cade_cli.rectification import MIN_CORRECTION_PX, VERTICAL_TOLERANCE_PX
+
+    worst = found.worst(width)
+    measured = (f"offset {found.offset:+.2f} px, roll {math.degrees(found.roll):+.3f} deg (up to {worst:.2f} px at "
+                f"the edges), from {found.matches} matches")
+    if corrected:
+        _note(f"rectification self-check: {measured}; corrected (--fix-vertical)")
+    elif fixed:
+        _note(f"rectification self-check: {measured}; below {MIN_CORRECTION_PX} px, left as is (--fix-vertical)")
+    elif worst > VERTICAL_TOLERANCE_PX:
+        _warn(f"rectification self-check: vertical misalignment {measured}, above {VERTICAL_TOLERANCE_PX} px; "
+              "add --fix-vertical or recalibrate")
+    else:
+        _note(f"rectification self-check: {measured}")
 
 
 @app.command()
@@ -385,6 +642,315 @@ def datasets_download(
         )
 
 
+# --- camera arrays (cade_cli.array; docs/rigs.md, "Camera arrays") ---------------------------------------------------
+
+
+@app.command("register-array")
+def register_array(
+    rig_file: Annotated[Path, typer.Argument(metavar="RIG", help="Rig file of the array (docs/rigs.md).",
+                                             show_default=False)],
+    images: Annotated[list[Path], typer.Argument(metavar="IMAGE...", help="One image per camera, in the rig's camera "
+                                                 "order, or each named after its camera (file stem = camera name).",
+                                                 show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Cube: planar float32 TIFF, the reference band, each "
+                                         "registered band, then one validity band per camera; band names in the "
+                                         "description.")],
+    method: MethodOption = DEFAULT_METHOD,
+    min_disp: Annotated[float, typer.Option("--min-disp", help="Smallest disparity searched, px per unit baseline "
+                                            "(the rig's shortest); negative: behind the rig's plane.")] = -16.0,
+    max_disp: Annotated[float, typer.Option("--max-disp", help="Largest disparity searched, px per unit baseline; "
+                                            "each camera searches the range times its baseline ratio.")] = 16.0,
+    match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Match at this fraction of "
+                                               "the resolution (faster; the disparity is brought back to full "
+                                               "size).")] = 1.0,
+    plane_only: Annotated[bool, typer.Option("--plane-only", help="Register on the rig's plane alone (its "
+                                             "to_reference mappings, or the rotation of a calibrated rig), no "
+                                             "parallax: the baseline `cade array-score` compares against.")] = False,
+    preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
+    disparity_file: Annotated[Optional[Path], typer.Option("--disparity", help="Also write the fused disparity of the "
+                                                           "reference view, px per unit baseline (.pfm, .tif, .npy; "
+                                                           "invalid where no camera voted).")] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a false-colour PNG of three bands (colour "
+                                                "fringes along edges = misregistration).")] = None,
+    vis_bands: Annotated[Optional[str], typer.Option("--vis-bands", help="Cameras shown as red,green,blue in --vis "
+                                                     "(default: the first camera, the reference, the last).")] = None,
+) -> None:
+    """Register every camera of the array in RIG onto its reference camera: one multi-band cube."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from cade_cli.array import array_cube, array_geometry, false_colour, write_array_cube
+    from cade_cli.array import register_array as register_cameras
+    from cade_cli.atomic import atomic_outputs
+    from cade_cli.disparity_io import write_disparity
+    from cade_cli.errors import CadeError
+    from cade_cli.imageio import read_band
+    from cade_cli.matching import get_matcher
+    from cade_cli.rig import load_rig
+
+    _check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))
+    if disparity_file is not None:
+        if plane_only:
+            raise CadeError("--disparity needs the parallax estimated; drop it or --plane-only")
+        _check_output(disparity_file, suffixes=(".pfm", ".tif", ".tiff", ".npy"), inputs=(rig_file, *images))
+    if vis is not None:
+        _check_output(vis, suffixes=(".png",), inputs=(rig_file, *images))
+    if not plane_only:
+        get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
+    rig = load_rig(rig_file)
+    geometry = array_geometry(rig)
+    order = (geometry.reference, *geometry.cameras)
+    channels = None
+    if vis is not None:
+        channels = ([name.strip() for name in vis_bands.split(",")] if vis_bands is not None
+                    else [rig.cameras[0].name, rig.reference, rig.cameras[-1].name])
+        unknown = [name for name in channels if name not in rig.names]
+        if len(channels) != 3 or unknown:
+            raise CadeError(f"--vis-bands must name three cameras of the rig ({', '.join(rig.names)}), "
+                            f"got {vis_bands!r}")
+    if len(images) != len(rig.cameras):
+        raise CadeError(f"the rig has {len(rig.cameras)} cameras ({', '.join(rig.names)}) but {len(images)} images "
+                        "were given; give one image per camera")
+    by_stem = {path.stem: path for path in images}
+    if set(by_stem) == set(rig.names):
+        paths = {name: by_stem[name] for name in rig.names}
+    else:
+        paths = dict(zip(rig.names, images))
+    bands = []
+    for camera in order:
+        band, note = read_band(paths[camera.name])
+        if note:
+            _note(f"{note}; camera {camera.name} uses it")
+        bands.append(band)
+    console = Console(stderr=True)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    started = time.perf_counter()
+    with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
+        task = "matching cameras" if not plane_only else "warping cameras"
+        bar = progress.add_task(task, total=len(geometry.cameras))
+        registration = register_cameras(
+            bands, geometry, parallax=not plane_only, method=method, search=(min_disp, max_disp), scale=match_scale,
+            preprocess=preprocess, model=model,
+            on_camera=lambda name: progress.update(bar, advance=1, description=f"{name} done"),
+        )
+    seconds = time.perf_counter() - started
+    details = {"rig": str(rig_file), "images": [str(paths[c.name]) for c in order], "plane_only": plane_only}
+    if not plane_only:
+        details.update(method=method, preprocess=get_matcher(method).resolve_preprocess(preprocess),
+                       search=[min_disp, max_disp], match_scale=match_scale)
+    cube = array_cube(registration, details=details)
+    with atomic_outputs([output, disparity_file, vis]) as staged:  # all outputs appear together, or none
+        write_array_cube(staged[output], cube)
+        if disparity_file is not None:
+            import numpy as np
+
+            fused = np.where(registration.disparity_valid, registration.disparity, np.float32(np.nan))
+            write_disparity(staged[disparity_file], fused)
+        if vis is not None:
+            import cv2
+
+            cv2.imwrite(str(staged[vis]), false_colour(cube, channels))
+    width, height = geometry.size
+    source = "the rig's plane only" if plane_only else (
+        f"{details['method']}+{details['preprocess']} over [{min_disp:g}, {max_disp:g}] px per "
+        f"{1000 * geometry.unit:g} mm of baseline at scale {match_scale:g}")
+    seen = ", ".join(f"{c.name} {100 * v.mean():.0f}%" for c, v in zip(geometry.cameras, registration.valid))
+    print(f"{output}: {width}x{height}, {len(order)} cameras onto {geometry.reference.name}, {source}; valid: {seen}; "
+          f"{seconds:.1f} s")
+
+
+@app.command("array-score")
+def array_score(
+    cubes: Annotated[list[Path], typer.Argument(metavar="CUBE...", help="Cubes of one array (`cade register-array`), "
+                                                "e.g. a --plane-only one and cade's.", show_default=False)],
+    window: Annotated[int, typer.Option("--window", min=3, max=101, help="Side of the windows gradients are "
+                                        "correlated in, px.")] = 15,
+) -> None:
+    """Alignment of each registered band with the reference band, without ground truth.
+
+    For every camera: the mean local normalised gradient correlation (NGC, 1 = every edge
+    where the reference has it, whatever the contrast) and the mutual information (bits),
+    over the pixels valid in every cube given, so cubes are compared on the same pixels.
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from cade_cli.array import read_array_cube, score_cubes
+
+    loaded = [read_array_cube(path) for path in cubes]
+    scores = score_cubes(loaded, window=window)
+    table = Table(title=f"alignment with {loaded[0].reference_name} (NGC: window {window} px; MI: 64 bins)",
+                  title_justify="left")
+    for name in ["camera", "band", "scored %", *(f"NGC {p.name}" for p in cubes), *(f"MI {p.name}" for p in cubes)]:
+        table.add_column(name, justify="left" if name in ("camera", "band") else "right")
+    for k in range(len(loaded[0].cameras)):
+        table.add_row(scores[0][k].camera, scores[0][k].band, f"{100 * scores[0][k].scored_share:.1f}",
+                      *(f"{s[k].gradient_correlation:.3f}" for s in scores),
+                      *(f"{s[k].mutual_information:.3f}" for s in scores))
+    table.add_row("mean", "", "", *(f"{sum(x.gradient_correlation for x in s) / len(s):.3f}" for s in scores),
+                  *(f"{sum(x.mutual_information for x in s) / len(s):.3f}" for s in scores))
+    Console(width=200).print(table)
+
+
+# --- many pairs (cade_cli.batch; docs/scale.md) ----------------------------------------------------------------------
+
+
+@app.command()
+def batch(
+    left: Annotated[Optional[str], typer.Option("--left", help="Glob pattern of the left images, quoted (e.g. "
+                                                "'cam0/*.png'); paired with --right by file name (or, without "
+                                                "shared names, by the last number in the names).")] = None,
+    right: Annotated[Optional[str], typer.Option("--right", help="Glob pattern of the right images, quoted.")] = None,
+    output_dir: Annotated[Optional[Path], typer.Option("--output-dir", "-o", help="With --left/--right: folder for "
+                                                       "the outputs, <left name>.<format> (created if missing).")] = None,
+    manifest: Annotated[Optional[Path], typer.Option("--manifest", help="CSV with a header row: left,right,output "
+                                                     "and optionally min_disp,max_disp,left_band,right_band (empty = "
+                                                     "the option's value); relative paths start at its folder.")] = None,
+    output_format: Annotated[str, typer.Option("--format", help="With --left/--right: disparity format, pfm, tif, "
+                                               "png (KITTI uint16) or npy.")] = "pfm",
+    method: MethodOption = DEFAULT_METHOD,
+    max_disp: MaxDispAutoOption = None,
+    min_disp: MinDispAutoOption = "0",
+    preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
+    fill: Annotated[str, typer.Option("--fill", help="As `cade disparity --fill`: 'row' (dense) or 'none'.")] = "row",
+    left_band: Annotated[Optional[int], _band_option("left")] = None,
+    right_band: Annotated[Optional[int], _band_option("right")] = None,
+    vis: Annotated[bool, typer.Option("--vis", help="Also write <name>_vis.png (colourised, invalid = black).")] = False,
+    validity: Annotated[bool, typer.Option("--validity", help="Also write <name>_validity.png (255 = valid).")] = False,
+    confidence: Annotated[bool, typer.Option("--confidence", help="Also write <name>_confidence.tif (float32, "
+                                             "[0, 1]).")] = False,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes on this machine, each loading "
+                                      "the model once; lowered if their memory would not fit.")] = 1,
+    threads: Annotated[Optional[int], typer.Option("--threads", min=1, help="Threads of each worker (default: the "
+                                                   "cores shared among --jobs; on a cluster, the workers' own).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run on a Dask cluster: its scheduler, "
+                                                     "tcp://host:8786 (needs the 'distributed' extra; docs/scale.md).")] = None,
+    scheduler_file: Annotated[Optional[Path], typer.Option("--scheduler-file", help="Run on the Dask cluster whose "
+                                                           "scheduler wrote this file.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Redo every pair, even those verified as finished.")] = False,
+    log: Annotated[Optional[Path], typer.Option("--log", help="JSON log of the run (default: cade-batch-log.json in "
+                                                "--output-dir, or <manifest>.log.json).")] = None,
+) -> None:
+    """Disparity of many pairs: resumable, one pair failing does not stop the others, on N processes or a Dask cluster.
+
+    A rerun skips every pair whose outputs are verified (sha256 and options in the record
+    beside each output, <output>.cade.json); --force redoes them. The exit status is 1 if
+    any pair failed.
+    """
+    from contextlib import nullcontext
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
+    from rich.text import Text
+
+    from cade_cli.atomic import atomic_output
+    from cade_cli.batch import (
+        BatchSummary, PairOptions, available_memory_bytes, cap_jobs, image_size, is_finished, log_document,
+        pair_memory_bytes, pairs_from_manifest, pairs_from_patterns, remove_stale_temporaries, run_dask, run_local,
+        skipped_result,
+    )
+    from cade_cli.errors import CadeError
+    from cade_cli.stereo import default_max_disparity
+
+    by_pattern = (left, right, output_dir)
+    if manifest is not None and any(value is not None for value in by_pattern):
+        raise CadeError("give either --manifest or --left, --right and --output-dir, not both")
+    if manifest is None and any(value is None for value in by_pattern):
+        missing = [name for name, value in zip(("--left", "--right", "--output-dir"), by_pattern) if value is None]
+        raise CadeError(f"missing {', '.join(missing)}: give --left 'A/*.png' --right 'B/*.png' --output-dir OUT, or "
+                        "--manifest pairs.csv")
+    if scheduler is not None and scheduler_file is not None:
+        raise CadeError("give --scheduler or --scheduler-file, not both")
+    cluster = scheduler is not None or scheduler_file is not None
+    if cluster and jobs != 1:
+        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
+    min_disp, max_disp = _parse_range_options(min_disp, max_disp)
+    options = PairOptions(method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, model=model,
+                          fill=fill, left_band=left_band, right_band=right_band, vis=vis, validity=validity,
+                          confidence=confidence)
+    options.check()
+    if manifest is not None:
+        pairs = pairs_from_manifest(manifest, options=options)
+        log = log if log is not None else manifest.with_name(manifest.stem + ".log.json")
+    else:
+        pairs = pairs_from_patterns(left, right, output_dir, options=options, suffix="." + output_format.lower().lstrip("."))
+        if output_dir.exists() and not output_dir.is_dir():
+            raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
+        output_dir.mkdir(parents=True, exist_ok=True)
+        log = log if log is not None else output_dir / "cade-batch-log.json"
+    _check_output(log, suffixes=(".json",), inputs=())
+    remove_stale_temporaries(pairs)  # left by a run that was killed
+    results = [] if force else [skipped_result(pair) for pair in pairs if is_finished(pair)]
+    finished = {result.output for result in results}
+    todo = [pair for pair in pairs if str(pair.output) not in finished]
+    engine_name = f"dask {scheduler or scheduler_file}" if cluster else f"{jobs} local job(s)"
+    if todo and not cluster and jobs > 1:
+        width, height = image_size(todo[0].left)
+        top = max_disp if isinstance(max_disp, int) else default_max_disparity(width)
+        bottom = min_disp if isinstance(min_disp, int) else -default_max_disparity(width)
+        per_job = pair_memory_bytes(method, width, height, top - bottom + 1)
+        allowed = cap_jobs(jobs, per_job)
+        if allowed < jobs:
+            _note(f"--jobs {jobs} lowered to {allowed}: a {width}x{height} pair may take {per_job / 2**30:.1f} GB per "
+                  f"job and {available_memory_bytes() / 2**30:.1f} GB are available")
+            jobs, engine_name = allowed, f"{allowed} local job(s)"
+    if threads is None and not cluster and jobs > 1:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+    engine = (run_dask(todo, address=scheduler, scheduler_file=scheduler_file, threads=threads) if cluster
+              else run_local(todo, jobs=jobs, threads=threads))
+    summary = BatchSummary(total=len(pairs), skipped=len(results))
+    config = {"command": ["cade", *sys.argv[1:]] if sys.argv[1:2] == ["batch"] else None, "engine": engine_name,
+              "manifest": None if manifest is None else str(manifest), "left": left, "right": right,
+              "output_dir": None if output_dir is None else str(output_dir), "force": force,
+              "options": {key: value for key, value in options.fingerprint().items()}}
+
+    class PairRate(ProgressColumn):
+        def render(self, task) -> Text:
+            rate = task.completed / task.elapsed if task.elapsed else 0.0
+            return Text(f"{rate:.2f} pairs/s")
+
+    console = Console(stderr=True, soft_wrap=True)
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), PairRate(),
+                        TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True,
+                        disable=not console.is_terminal)
+    if summary.skipped:
+        _note(f"{summary.skipped} of {len(pairs)} pairs already finished (outputs verified); --force redoes them")
+    started = time.perf_counter()
+    shown_notes: set[str] = set()
+    try:
+        with progress if todo else nullcontext():
+            bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
+            for result in engine:
+                results.append(result)
+                summary.add(result)
+                for note in result.notes:
+                    if note not in shown_notes:
+                        shown_notes.add(note)
+                        progress.console.print(f"note: {note}", highlight=False, markup=False)
+                if result.status == "failed":
+                    progress.console.print(f"warning: pair {result.left}, {result.right} failed: {result.error}",
+                                           highlight=False, markup=False)
+                elif result.range_note is not None:
+                    progress.console.print(f"note: {result.output}: {result.range_note}", highlight=False, markup=False)
+                progress.update(bar, advance=1)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        _warn(f"interrupted: {summary.done} pair(s) finished in this run, their outputs complete; rerun the same "
+              f"command to go on (finished pairs are skipped); log {log}")
+        raise
+    finally:
+        summary.seconds = time.perf_counter() - started
+        remove_stale_temporaries(todo)
+        with atomic_output(log) as temporary:
+            temporary.write_text(log_document(results, summary, config=config))
+    print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} pairs; "
+          f"{summary.seconds:.1f} s ({summary.pairs_per_minute:.1f} pairs/min, {engine_name}); log {log}")
+    if summary.failed:
+        raise CadeError(f"{summary.failed} of {summary.total} pairs failed (each named above and in {log})")
+
+
 def _read_pair(
     left: Path, right: Path, left_band: int | None, right_band: int | None,
     names: tuple[str, str] = ("--left-band", "--right-band"),
@@ -423,6 +989,26 @@ def _resolve_max_disp(max_disp: int | None, width: int) -> int:
     _note(f"--max-disp not given: searching up to {chosen} px (a quarter of the width); "
           "set it to your scene's largest disparity for speed and accuracy")
     return chosen
+
+
+def _parse_range_options(min_disp: str | int, max_disp: str | int | None) -> tuple[int | str, int | str | None]:
+    """--min-disp and --max-disp as given: whole pixels or 'auto' (:func:`cade_cli.range.parse_bound`)."""
+    from cade_cli.range import parse_bound
+
+    return (parse_bound(min_disp, option="min-disp"),
+            None if max_disp is None else parse_bound(max_disp, option="max-disp", minimum=1))
+
+
+def _resolve_range_options(min_disp: int | str, max_disp: int | str | None, left_image, right_image) -> tuple[int, int]:
+    """The searched (min, max), px: 'auto' bounds estimated and announced on stderr, a
+    missing --max-disp defaulted (:func:`_resolve_max_disp`)."""
+    from cade_cli.range import AUTO, resolve_range
+
+    if AUTO not in (min_disp, max_disp):
+        return int(min_disp), _resolve_max_disp(max_disp, left_image.shape[1])
+    searched, estimate = resolve_range(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
+    _note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    return searched.minimum, searched.maximum
 
 
 def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:

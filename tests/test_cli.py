@@ -15,19 +15,7 @@ from cade_cli import cli
 from cade_cli.disparity_io import read_disparity
 from cade_cli.imageio import load_image
 from synthetic import render_pair
-
-
-def run_cade(args: list[str], capsys) -> tuple[int, str, str]:
-    """Run the CLI in-process (fast) and return (exit code, stdout, stderr)."""
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return exit_info.value.code, captured.out, captured.err
-
-
-def write_png16(path: Path, band: np.ndarray) -> Path:
-    cv2.imwrite(str(path), np.rint(np.clip(band, 0, 1) * 65535).astype(np.uint16))
-    return path
+from cli_runner import run_cade, write_png16
 
 
 @pytest.fixture

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli import cli
 from cade_cli.evaluation.loop import run_benchmark
 from cade_cli.evaluation.metrics import score, sparsification_auc, sparsification_curve
 from cade_cli.evaluation.protocols import run_protocol
@@ -23,6 +22,7 @@ from cade_cli.matching.network import NetworkStage, choose_variant, onnx_session
 from cade_cli.model_card import read_card
 from cade_cli.spectral import color_agnostic
 from synthetic import render_pair
+from cli_runner import run_cade
 
 SHAPE = (96, 160)
 BACKGROUND, FOREGROUND = 6.0, 16.0
@@ -201,13 +201,6 @@ def test_benchmark_records_and_reports_the_areas(folder_dataset):
 
 
 # ---- the command line
-
-
-def run_cade(args, capsys) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return exit_info.value.code, captured.out, captured.err
 
 
 @pytest.fixture

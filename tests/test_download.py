@@ -21,12 +21,12 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from cade_cli import cli
 from cade_cli.data import (
     BASE_URL_ENV, DOWNLOADS_FOLDER, MIDDLEBURY14_TRAINING, SOURCES, Archive, DatasetSource, Expected,
     download_dataset, get_dataset, mirror_url,
 )
 from cade_cli.errors import CadeError
+from cli_runner import run_cade
 
 
 # --- a local server with Range support --------------------------------------------------
@@ -432,12 +432,6 @@ def test_an_unreachable_host_is_one_line_with_advice(tmp_path):
 
 
 # --- CLI ----------------------------------------------------------------------------------
-
-def run_cade(args: list, capsys) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return exit_info.value.code, captured.out, captured.err
 
 
 def test_cli_download_prints_one_summary_line(server, tmp_path, capsys, monkeypatch):

@@ -237,7 +237,7 @@ def test_multipage_band_selection(tmp_path: Path) -> None:
 
 def test_band_out_of_range(tmp_path: Path) -> None:
     path = _write_cv2(tmp_path / "c.png", np.zeros((2, 2, 3), np.uint8))
-    with pytest.raises(CadeError, match=rf"^band 5 is out of range: .*c\.png has 3 bands \(0-2\)$"):
+    with pytest.raises(CadeError, match=r"^band 5 is out of range: .*c\.png has 3 bands \(0-2\)$"):
         read_band(path, 5)
     with pytest.raises(CadeError, match="band -1 is out of range"):
         read_band(path, -1)

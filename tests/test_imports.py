@@ -22,9 +22,13 @@ LAYERS: dict[str, int] = {
     "cade_cli.matching": 1,
     # 2: the library's entry points
     "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.registration_io": 2,
+    "cade_cli.rig": 2, "cade_cli.calibration": 2, "cade_cli.rectification": 2,
+    "cade_cli.array": 2, "cade_cli.range": 2,
     # 3: data sets, then the evaluation built on them
     "cade_cli.data": 3,
     "cade_cli.evaluation": 4,
+    # 4: many pairs (uses the evaluation's thread setting; engines: processes, Dask)
+    "cade_cli.batch": 4,
     # 5: the command line and the package root
     "cade_cli.cli": 5, "cade_cli.__main__": 5, "cade_cli": 5,
     # training: may use everything below the CLI; nothing but itself imports it

@@ -20,22 +20,13 @@ import tifffile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cade_cli import cli
 from cade_cli.disparity_io import read_disparity, read_validity, write_disparity
 from cade_cli.errors import CadeError
 from cade_cli.imageio import MAX_IMAGE_PIXELS, load_image
 from synthetic import render_pair
+from cli_runner import run_cade
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def run_cade(args: list, capfd) -> tuple[int, str, str]:
-    """Run the CLI in-process; (exit code, stdout, stderr), stderr read at the descriptor
-    level so that what C libraries print to fd 2 is seen too."""
-    with pytest.raises(SystemExit) as exit_info:
-        cli.main([str(a) for a in args])
-    captured = capfd.readouterr()
-    return exit_info.value.code, captured.out, captured.err
 
 
 def assert_one_line_error(code: int, stderr: str, *words: str) -> None:
@@ -72,8 +63,6 @@ def pair(tmp_path, rng):
     cv2.imwrite(str(left), np.rint(rendered.left * 255).astype(np.uint8))
     cv2.imwrite(str(right), np.rint(rendered.right * 255).astype(np.uint8))
     return left, right
-
-
 
 
 # --- unwritable places: chmod does not stop root, so use places no one can write to ---

@@ -1,0 +1,487 @@
+"""Calibrate a rig from pictures of a board: detection across bands, OpenCV calibration.
+
+A rig's cameras look through different filters, so one board can be bright in one band,
+dark in another, low in contrast or partly hidden in a third. :func:`detect_board`
+therefore normalises each picture first (a percentile stretch, then CLAHE) and tries
+it both as it is and inverted; chessboard corners are refined with ``cornerSubPix``.
+ChArUco boards (``cv2.aruco``) also work when only part of the board is seen, since
+each corner carries its id.
+
+:func:`calibrate_rig` then calibrates every camera on its own (``cv2.calibrateCamera``),
+leaves out views whose error is far above the others and calibrates again, and finally
+puts every camera relative to the reference (``cv2.stereoCalibrate`` with the intrinsics
+fixed, the same outlier rule) and rectifies the reference with the first other camera
+(``cv2.stereoRectify``). Views are paired across cameras by the last number in their file
+names (``left07.png`` with ``right07.png``); when a name has none, by sorted order.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cade_cli.errors import CadeError
+from cade_cli.imageio import read_band
+from cade_cli.rectification import stereo_rectification
+from cade_cli.rig import Calibration, Camera, Rig
+
+BOARD_KINDS = ("chessboard", "charuco")
+
+CHARUCO_DICTIONARIES = tuple(name for name in dir(cv2.aruco) if name.startswith("DICT_"))
+"""Names of the ArUco dictionaries a ChArUco board may use (``DICT_5X5_100``, ...)."""
+
+MIN_VIEWS = 3
+"""The fewest views a camera (and a camera pair) is calibrated from."""
+
+OUTLIER_FACTOR = 3.0
+OUTLIER_FLOOR_PX = 0.5
+"""A view is an outlier when its reprojection error exceeds both OUTLIER_FACTOR x the
+median view's and OUTLIER_FLOOR_PX (so that a set of excellent views loses none)."""
+
+MIN_CHARUCO_CORNERS = 6
+"""The fewest ChArUco corners a view must show (and two cameras share) to be used."""
+
+
+@dataclass(frozen=True)
+class Board:
+    """A calibration target.
+
+    Attributes:
+        kind: ``"chessboard"`` or ``"charuco"``.
+        columns, rows: chessboard: inner corners along x and y (OpenCV's pattern size,
+            9x6 for a board of 10x7 squares); ChArUco: squares along x and y.
+        square: side of a square, metres (the unit of every translation that follows).
+        marker: ChArUco only: side of a marker, metres.
+        dictionary: ChArUco only: the ArUco dictionary, e.g. ``"DICT_5X5_100"``.
+    """
+
+    kind: str
+    columns: int
+    rows: int
+    square: float
+    marker: float | None = None
+    dictionary: str | None = None
+
+    @property
+    def corners(self) -> np.ndarray:
+        """(N, 3) float32 board coordinates of every corner, metres (z = 0), in id order."""
+        if self.kind == "charuco":
+            return np.asarray(self.charuco.getChessboardCorners(), np.float32).reshape(-1, 3)
+        grid = np.mgrid[0:self.columns, 0:self.rows].T.reshape(-1, 2).astype(np.float32)
+        return np.hstack([grid * self.square, np.zeros((len(grid), 1), np.float32)])
+
+    @property
+    def charuco(self) -> cv2.aruco.CharucoBoard:
+        """The OpenCV ChArUco board (ChArUco boards only)."""
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        return cv2.aruco.CharucoBoard((self.columns, self.rows), self.square, self.marker, dictionary)
+
+    def to_dict(self) -> dict:
+        """The ``calibration.board`` entry of a rig file."""
+        if self.kind == "chessboard":
+            return {"type": "chessboard", "inner_corners": [self.columns, self.rows], "square": self.square}
+        return {"type": "charuco", "squares": [self.columns, self.rows], "square": self.square,
+                "marker": self.marker, "dictionary": self.dictionary}
+
+
+def parse_board(spec: str, *, square: float, marker: float | None = None, dictionary: str = "DICT_5X5_100") -> Board:
+    """The board ``spec`` names: ``chessboard:COLSxROWS`` (inner corners) or
+    ``charuco:COLSxROWS`` (squares), with the square (and marker) side in metres.
+
+    Raises:
+        CadeError: a malformed spec, a non-positive size, a marker not smaller than the
+            square, an unknown dictionary.
+    """
+    match = re.fullmatch(r"(chessboard|charuco):(\d+)x(\d+)", spec.strip().lower())
+    if match is None:
+        raise CadeError(f"board {spec!r} not understood; write chessboard:COLSxROWS (inner corners, e.g. "
+                        "chessboard:9x6) or charuco:COLSxROWS (squares, e.g. charuco:11x8)")
+    kind, columns, rows = match[1], int(match[2]), int(match[3])
+    if not square > 0:
+        raise CadeError(f"--square must be the side of a board square in metres (> 0), got {square}")
+    if kind == "chessboard":
+        if columns < 3 or rows < 3:
+            raise CadeError(f"a chessboard needs at least 3x3 inner corners, got {columns}x{rows}")
+        if columns == rows:
+            raise CadeError(f"a {columns}x{rows} chessboard looks the same turned by 90 degrees, so its corners cannot be "
+                            "told apart between cameras; use a board with different numbers of rows and columns")
+        return Board("chessboard", columns, rows, float(square))
+    if columns < 3 or rows < 3:
+        raise CadeError(f"a ChArUco board needs at least 3x3 squares, got {columns}x{rows}")
+    marker = 0.75 * square if marker is None else marker
+    if not 0 < marker < square:
+        raise CadeError(f"--marker must be smaller than --square (both in metres), got {marker} and {square}")
+    dictionary = dictionary.upper()
+    if dictionary not in CHARUCO_DICTIONARIES:
+        raise CadeError(f"unknown ArUco dictionary {dictionary!r}; choose e.g. DICT_4X4_50, DICT_5X5_100, DICT_6X6_250")
+    return Board("charuco", columns, rows, float(square), float(marker), dictionary)
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The board found in one picture.
+
+    Attributes:
+        points: (N, 2) float32 corner positions, px (x, y).
+        ids: (N,) int corner ids: rows of :attr:`Board.corners`.
+        inverted: True when the board was found in the inverted picture.
+    """
+
+    points: np.ndarray
+    ids: np.ndarray
+    inverted: bool
+
+
+def normalise_for_detection(band: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 picture for board detection: the 0.5-99.5 percentile range
+    stretched to 0-255, then CLAHE (clip 2, 8x8 tiles), so that a dim, low-contrast or
+    unevenly lit board in any band shows full-contrast corners."""
+    values = np.asarray(band, np.float32)
+    finite = values[np.isfinite(values)]
+    low, high = (np.percentile(finite, (0.5, 99.5)) if finite.size else (0.0, 1.0))
+    scaled = np.clip((np.nan_to_num(values, nan=low) - low) / max(float(high - low), 1e-12), 0, 1)
+    image = np.round(scaled * 255).astype(np.uint8)
+    return cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(image)
+
+
+def detect_board(band: np.ndarray, board: Board) -> Detection | None:
+    """Find ``board`` in an (H, W) band of any range; None where it is not found.
+
+    The band is normalised (:func:`normalise_for_detection`) and tried as it is and
+    inverted. A chessboard must be seen whole; its corners come back in OpenCV's order
+    (which may be turned by 180 degrees: :func:`calibrate_rig` makes the cameras agree).
+    A ChArUco board may be seen in part: the view with the most corners (at least
+    :data:`MIN_CHARUCO_CORNERS`) is kept.
+    """
+    image = normalise_for_detection(band)
+    found: list[Detection] = []
+    for inverted in (False, True):
+        candidate = 255 - image if inverted else image
+        detection = _detect_chessboard(candidate, board) if board.kind == "chessboard" else _detect_charuco(candidate, board)
+        if detection is not None:
+            found.append(Detection(detection[0], detection[1], inverted))
+            if board.kind == "chessboard" or len(detection[1]) == len(board.corners):
+                break
+    return max(found, key=lambda d: len(d.ids)) if found else None
+
+
+def _detect_chessboard(image: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
+    size = (board.columns, board.rows)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    ok, corners = cv2.findChessboardCorners(image, size, flags=flags)
+    if ok:
+        grid = corners.reshape(board.rows, board.columns, 2)
+        spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=2).min(), np.linalg.norm(np.diff(grid, axis=1), axis=2).min())
+        half = int(np.clip(spacing * 0.4, 2, 11))
+        criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
+        corners = cv2.cornerSubPix(image, corners, (half, half), (-1, -1), criteria)
+    else:
+        ok, corners = cv2.findChessboardCornersSB(image, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE)
+        if not ok:
+            return None
+    return corners.reshape(-1, 2).astype(np.float32), np.arange(board.columns * board.rows)
+
+
+def _detect_charuco(image: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
+    detector = cv2.aruco.CharucoDetector(board.charuco)
+    corners, ids, _, _ = detector.detectBoard(image)
+    if ids is None or len(ids) < MIN_CHARUCO_CORNERS:
+        return None
+    return corners.reshape(-1, 2).astype(np.float32), ids.reshape(-1).astype(int)
+
+
+def draw_detection(band: np.ndarray, board: Board, detection: Detection | None, *, left_out: bool = False) -> np.ndarray:
+    """(H, W, 3) uint8 BGR picture of the normalised band (what the detector saw) with the
+    corners found drawn on it; a red frame where the board was not found, an orange one
+    where it was found but the view was left out (``left_out``)."""
+    image = cv2.cvtColor(normalise_for_detection(band), cv2.COLOR_GRAY2BGR)
+    thickness = max(3, image.shape[1] // 200)
+    if detection is None:
+        cv2.rectangle(image, (0, 0), (image.shape[1] - 1, image.shape[0] - 1), (0, 0, 255), thickness)
+        return image
+    if board.kind == "chessboard":
+        cv2.drawChessboardCorners(image, (board.columns, board.rows), detection.points.reshape(-1, 1, 2), True)
+    else:
+        cv2.aruco.drawDetectedCornersCharuco(image, detection.points.reshape(-1, 1, 2),
+                                             detection.ids.reshape(-1, 1).astype(np.int32), (0, 255, 0))
+    if left_out:
+        cv2.rectangle(image, (0, 0), (image.shape[1] - 1, image.shape[0] - 1), (0, 165, 255), thickness)
+    return image
+
+
+@dataclass(frozen=True)
+class CameraImages:
+    """The calibration pictures of one camera: its name, band and image files."""
+
+    name: str
+    band: str
+    files: tuple[Path, ...]
+
+
+def view_key(path: Path) -> str | None:
+    """The last run of digits in a file's stem (``left07.png`` -> ``"07"``), None without one."""
+    numbers = re.findall(r"\d+", Path(path).stem)
+    return numbers[-1] if numbers else None
+
+
+def pair_views(cameras: Sequence[CameraImages]) -> list[tuple[str, dict[str, Path]]]:
+    """Views as ``(key, {camera: file})``, paired by the number in the file names (a
+    camera may miss a view) or, when a name has no number, by sorted order.
+
+    Raises:
+        CadeError: two files of one camera with the same number; without numbers,
+            cameras with different counts of files.
+    """
+    keyed = all(view_key(path) is not None for camera in cameras for path in camera.files)
+    views: dict[str, dict[str, Path]] = {}
+    if keyed:
+        for camera in cameras:
+            for path in sorted(camera.files):
+                key = str(int(view_key(path)))
+                if key in views and camera.name in views[key]:
+                    raise CadeError(f"camera {camera.name}: {views[key][camera.name]} and {path} both have number "
+                                    f"{key}; views are paired by the number in the file name, give each view its own")
+                views.setdefault(key, {})[camera.name] = path
+        return sorted(views.items(), key=lambda item: int(item[0]))
+    counts = {camera.name: len(camera.files) for camera in cameras}
+    if len(set(counts.values())) != 1:
+        shown = ", ".join(f"{name} {count}" for name, count in counts.items())
+        raise CadeError(f"file names without numbers are paired by sorted order, but the cameras have different "
+                        f"numbers of files ({shown}); number the views (left01, right01, ...) or give equal counts")
+    ordered = {camera.name: sorted(camera.files) for camera in cameras}
+    return [(str(i + 1), {name: files[i] for name, files in ordered.items()}) for i in range(len(cameras[0].files))]
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """What :func:`calibrate_rig` found.
+
+    Attributes:
+        rig: the calibrated rig (with ``calibration`` and ``rectification`` filled in).
+        views: (view key, {camera: file}) of every view, as paired.
+        detections: camera -> view key -> the board found (None: not found), for pictures.
+        left_out: camera -> view key -> ``"outlier"`` for the views of a camera that its
+            own calibration left out (and so every pair with it).
+        notes: one line per view left out, saying why.
+    """
+
+    rig: Rig
+    views: list[tuple[str, dict[str, Path]]]
+    detections: dict[str, dict[str, Detection | None]]
+    left_out: dict[str, dict[str, str]]
+    notes: list[str]
+
+
+def calibrate_rig(cameras: Sequence[CameraImages], board: Board, *, reference: str | None = None) -> CalibrationResult:
+    """Calibrate two or more cameras from pictures of ``board``.
+
+    Each camera is calibrated on its own (``cv2.calibrateCamera``), views whose error
+    is an outlier (over :data:`OUTLIER_FACTOR` x the median and :data:`OUTLIER_FLOOR_PX`)
+    are left out and it is calibrated again; then every other camera is placed relative
+    to the reference (``cv2.stereoCalibrate``, intrinsics fixed, same outlier rule), and
+    the reference is rectified with the first other camera.
+
+    Args:
+        cameras: each camera's name, band and pictures; the first is the reference unless
+            ``reference`` names another. Pictures of one camera must share one size.
+        board: the target (:func:`parse_board`); translations come out in its unit (metres).
+
+    Raises:
+        CadeError: fewer than two cameras, duplicate names, unreadable pictures, pictures
+            of one camera with different sizes, fewer than :data:`MIN_VIEWS` usable views
+            for a camera or a camera pair, a calibration OpenCV cannot solve.
+    """
+    if len(cameras) < 2:
+        raise CadeError("calibration needs two or more cameras; give --camera NAME:BAND:PATTERN for each")
+    names = [camera.name for camera in cameras]
+    if len(set(names)) != len(names):
+        raise CadeError(f"camera names must differ, got {', '.join(names)}")
+    reference = names[0] if reference is None else reference
+    if reference not in names:
+        raise CadeError(f"reference camera {reference!r} is not one of {', '.join(names)}")
+    for camera in cameras:
+        if not camera.files:
+            raise CadeError(f"camera {camera.name} has no pictures; check its file pattern")
+    views = pair_views(cameras)
+    notes: list[str] = []
+    rejected: dict[str, dict] = {}  # view key -> why it was (partly) left out
+    left_out: dict[str, dict[str, str]] = {name: {} for name in names}  # camera -> view key -> "outlier"
+    detections: dict[str, dict[str, Detection | None]] = {name: {} for name in names}
+    sizes: dict[str, tuple[int, int]] = {}
+    for key, files in views:
+        for name, path in files.items():
+            band, _ = read_band(path)
+            size = (band.shape[1], band.shape[0])
+            if sizes.setdefault(name, size) != size:
+                raise CadeError(f"{path} is {size[0]}x{size[1]} but camera {name}'s other pictures are "
+                                f"{sizes[name][0]}x{sizes[name][1]}; one camera, one image size")
+            detections[name][key] = detect_board(band, board)
+            if detections[name][key] is None:
+                notes.append(f"view {key}: board not found in {path}; left out for camera {name}")
+                rejected.setdefault(key, {"reason": notes[-1]})
+    files_of = dict(views)
+    intrinsics: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
+    for name in names:
+        keys = [key for key, _ in views if detections[name].get(key) is not None]
+        K, dist, rms, kept = _calibrate_camera(name, keys, detections[name], board, sizes[name], files_of, notes,
+                                               rejected)
+        intrinsics[name] = (K, dist, rms)
+        for key in set(keys) - set(kept):
+            left_out[name][key] = "outlier"  # an outlier view is not used in any pair either
+    poses: dict[str, tuple[np.ndarray, np.ndarray]] = {reference: (np.eye(3), np.zeros(3))}
+    view_errors: dict[str, dict[str, float]] = {}
+    pair_rms: list[float] = []
+    for name in names:
+        if name == reference:
+            continue
+        R, t, rms, errors = _calibrate_pair(reference, name, views, detections, left_out, board, intrinsics,
+                                            sizes[reference], files_of, notes, rejected)
+        poses[name] = (R, t)
+        pair_rms.append(rms)
+        for key, (error_ref, error_other) in errors.items():
+            view_errors.setdefault(key, {})[reference] = error_ref
+            view_errors[key][name] = error_other
+    rig_cameras = tuple(
+        Camera(name=camera.name, band=camera.band, image_size=sizes[camera.name], K=intrinsics[camera.name][0],
+               dist=intrinsics[camera.name][1], R=poses[camera.name][0], t=poses[camera.name][1])
+        for camera in cameras)
+    other = next(name for name in names if name != reference)
+    calibration = Calibration(
+        board=board.to_dict(), rms=float(max(pair_rms)), camera_rms={name: intrinsics[name][2] for name in names},
+        views=[{"view": key, "files": {n: str(p) for n, p in files_of[key].items()}, "errors": errors}
+               for key, errors in sorted(view_errors.items(), key=lambda item: int(item[0]) if item[0].isdigit() else item[0])],
+        rejected=[{"view": key, "files": {n: str(p) for n, p in files_of[key].items()}, "reason": entry["reason"]}
+                  for key, entry in rejected.items()],
+    )
+    unrectified = Rig(reference=reference, cameras=rig_cameras, calibration=calibration)
+    rig = Rig(reference=reference, cameras=rig_cameras, calibration=calibration,
+              rectification=stereo_rectification(unrectified, other))
+    return CalibrationResult(rig=rig, views=views, detections=detections, left_out=left_out, notes=notes)
+
+
+def _object_image_points(detection: Detection, board: Board, ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Board (N, 1, 3) and image (N, 1, 2) float32 points of ``detection`` (only ``ids`` if given, in that order)."""
+    if ids is None:
+        ids = detection.ids
+    order = {int(i): n for n, i in enumerate(detection.ids)}
+    rows = [order[int(i)] for i in ids]
+    return (board.corners[np.asarray(ids, int)].reshape(-1, 1, 3),
+            detection.points[rows].reshape(-1, 1, 2).astype(np.float32))
+
+
+def _outliers(errors: dict[str, float]) -> list[str]:
+    median = float(np.median(list(errors.values())))
+    limit = max(OUTLIER_FACTOR * median, OUTLIER_FLOOR_PX)
+    return [key for key, error in errors.items() if error > limit]
+
+
+def _too_few(what: str, count: int, notes: list[str]) -> CadeError:
+    hint = "; ".join(notes[-3:]) if notes else "check the board size and the pictures"
+    return CadeError(f"{what}: only {count} usable view(s), {MIN_VIEWS} needed ({hint})")
+
+
+def _calibrate_camera(name, keys, detections, board, size, files_of, notes, rejected):
+    """K, dist, RMS and the kept view keys of one camera: calibrate, drop outlier views, calibrate again."""
+    kept = list(keys)
+    for attempt in range(2):
+        if len(kept) < MIN_VIEWS:
+            raise _too_few(f"camera {name}", len(kept), notes)
+        points = [_object_image_points(detections[key], board) for key in kept]
+        flags = 0
+        if board.kind == "charuco" or len(kept) < 6:
+            flags |= cv2.CALIB_FIX_K3  # partial or few views cannot pin down the sixth-order term
+        try:
+            rms, K, dist, _, _, _, _, per_view = cv2.calibrateCameraExtended(
+                [p[0] for p in points], [p[1] for p in points], size, None, None, flags=flags)
+        except cv2.error as exc:
+            raise CadeError(f"camera {name}: OpenCV could not calibrate from {len(kept)} views ({_cv_reason(exc)}); "
+                            "add views with the board at different angles") from None
+        errors = {key: float(e) for key, e in zip(kept, np.asarray(per_view).reshape(-1))}
+        outliers = _outliers(errors) if attempt == 0 else []
+        if not outliers:
+            return K, dist.reshape(-1), float(rms), kept
+        median = float(np.median(list(errors.values())))
+        for key in outliers:
+            path = files_of[key][name]
+            notes.append(f"view {key}: {path} reprojects with {errors[key]:.2f} px, over {OUTLIER_FACTOR:g}x the "
+                         f"median {median:.2f} px; left out for camera {name}")
+            rejected.setdefault(key, {"reason": notes[-1]})
+        kept = [key for key in kept if key not in outliers]
+    raise AssertionError("unreachable")
+
+
+def _common_points(key, reference, other, detections, board):
+    """Board and image points of the corners both cameras saw in view ``key``, None if too few."""
+    first, second = detections[reference].get(key), detections[other].get(key)
+    if first is None or second is None:
+        return None
+    if board.kind == "chessboard":
+        second = _agree_with(first, second, board)
+        ids = first.ids
+    else:
+        ids = np.intersect1d(first.ids, second.ids)
+        if len(ids) < MIN_CHARUCO_CORNERS:
+            return None
+    objects, image_first = _object_image_points(first, board, ids)
+    _, image_second = _object_image_points(second, board, ids)
+    return objects, image_first, image_second
+
+
+def _agree_with(first: Detection, second: Detection, board: Board) -> Detection:
+    """``second``'s chessboard corners in the order that matches ``first``'s.
+
+    OpenCV orders a chessboard's corners by its colours, and a 9x6 board inverted looks
+    like the board turned by 180 degrees, so a band that shows it inverted numbers the
+    corners the other way round. Cameras of a rig are mounted nearly parallel: the board's
+    first-to-last corner direction must point the same way in both pictures.
+    """
+    direction_first = first.points[-1] - first.points[0]
+    direction_second = second.points[-1] - second.points[0]
+    if float(direction_first @ direction_second) >= 0:
+        return second
+    return Detection(second.points[::-1].copy(), second.ids, second.inverted)
+
+
+def _calibrate_pair(reference, other, views, detections, left_out, board, intrinsics, size, files_of, notes, rejected):
+    """R, t, RMS and per-view errors of camera ``other`` relative to ``reference`` (intrinsics fixed)."""
+    usable = {name: {key: d for key, d in detections[name].items() if key not in left_out[name]}
+              for name in (reference, other)}
+    kept = [key for key, _ in views if _common_points(key, reference, other, usable, board) is not None]
+    K1, d1, _ = intrinsics[reference]
+    K2, d2, _ = intrinsics[other]
+    for attempt in range(2):
+        if len(kept) < MIN_VIEWS:
+            raise _too_few(f"cameras {reference} and {other} together", len(kept), notes)
+        points = [_common_points(key, reference, other, usable, board) for key in kept]
+        try:
+            result = cv2.stereoCalibrateExtended(
+                [p[0] for p in points], [p[1] for p in points], [p[2] for p in points], K1, d1, K2, d2, size,
+                None, None, flags=cv2.CALIB_FIX_INTRINSIC,
+                criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-6))
+        except cv2.error as exc:
+            raise CadeError(f"cameras {reference} and {other}: OpenCV could not calibrate the pair "
+                            f"({_cv_reason(exc)}); do both cameras see the board in the same views?") from None
+        rms, R, T, per_view = result[0], result[5], result[6], np.asarray(result[11]).reshape(-1, 2)
+        errors = {key: (float(a), float(b)) for key, (a, b) in zip(kept, per_view)}
+        combined = {key: float(np.hypot(a, b) / np.sqrt(2)) for key, (a, b) in errors.items()}
+        outliers = _outliers(combined) if attempt == 0 else []
+        if not outliers:
+            return R, T.reshape(-1), float(rms), errors
+        median = float(np.median(list(combined.values())))
+        for key in outliers:
+            files = files_of[key]
+            notes.append(f"view {key}: {files[reference]} / {files[other]} reproject with {combined[key]:.2f} px as "
+                         f"a pair, over {OUTLIER_FACTOR:g}x the median {median:.2f} px; left out")
+            rejected.setdefault(key, {"reason": notes[-1]})
+        kept = [key for key in kept if key not in outliers]
+    raise AssertionError("unreachable")
+
+
+def _cv_reason(error: cv2.error) -> str:
+    text = str(error).strip().splitlines()
+    return (text[-1] if text else "error").strip()[:120]

@@ -1,0 +1,265 @@
+"""`cade batch`: many pairs, resume on verified outputs, failures that do not stop the rest,
+worker processes and a Dask cluster giving the same bytes as one process."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cade_cli.batch import (
+    Pair, PairOptions, cap_jobs, is_finished, pair_memory_bytes, pairs_from_manifest, pairs_from_patterns,
+)
+from cade_cli.disparity_io import read_disparity
+from cade_cli.errors import CadeError
+from synthetic import render_pair
+from cli_runner import run_cade, write_png16
+
+FAST = ["--method", "census-sgm", "--max-disp", "16"]
+"""A quick classical matcher over a small range: these tests are about the batch, not the matching."""
+
+
+@pytest.fixture
+def cameras(tmp_path, rng) -> Path:
+    """cam0/000N.png and cam1/000N.png: three cross-band pairs of known disparity."""
+    for side in ("cam0", "cam1"):
+        (tmp_path / side).mkdir()
+    for index in range(3):
+        pair = render_pair(rng, (48, 96), background=(4.0 + index, 0.0), foreground=(10.0, 0.0))
+        write_png16(tmp_path / "cam0" / f"{index:04d}.png", pair.left)
+        write_png16(tmp_path / "cam1" / f"{index:04d}.png", 0.1 + 0.6 * pair.right**2)
+    return tmp_path
+
+
+def batch_args(root: Path, out: str, *extra) -> list:
+    return ["batch", "--left", root / "cam0" / "*.png", "--right", root / "cam1" / "*.png", "-o", root / out, *FAST,
+            *extra]
+
+
+def outputs(folder: Path) -> dict[str, bytes]:
+    """Every disparity and side output of a batch folder (not its log, whose times differ)."""
+    return {path.name: path.read_bytes() for path in sorted(folder.iterdir()) if path.suffix in (".pfm", ".png")}
+
+
+def log_of(folder: Path) -> dict:
+    return json.loads((folder / "cade-batch-log.json").read_text())
+
+
+def test_batch_writes_what_disparity_writes(cameras, capsys):
+    code, stdout, _ = run_cade(batch_args(cameras, "out", "--vis"), capsys)
+    assert code == 0 and "3 done, 0 already finished, 0 failed, of 3 pairs" in stdout
+    written = outputs(cameras / "out")
+    assert sorted(written) == ["0000.pfm", "0000_vis.png", "0001.pfm", "0001_vis.png", "0002.pfm", "0002_vis.png"]
+    single = cameras / "single.pfm"
+    assert run_cade(["disparity", cameras / "cam0" / "0001.png", cameras / "cam1" / "0001.png", "-o", single, *FAST],
+                    capsys)[0] == 0
+    assert written["0001.pfm"] == single.read_bytes()  # one matching code path
+    disparity = read_disparity(cameras / "out" / "0002.pfm")
+    assert abs(float(np.median(disparity)) - 6.0) < 0.5  # the background of pair 2
+    log = log_of(cameras / "out")
+    assert [entry["status"] for entry in log["pairs"]] == ["done"] * 3
+    assert log["summary"]["done"] == 3 and log["config"]["options"]["method"] == "census-sgm"
+    assert not [p for p in (cameras / "out").iterdir() if ".tmp-" in p.name]
+
+
+def test_rerun_skips_verified_outputs_and_redoes_a_damaged_one(cameras, capsys):
+    assert run_cade(batch_args(cameras, "out"), capsys)[0] == 0
+    first = outputs(cameras / "out")
+    code, stdout, stderr = run_cade(batch_args(cameras, "out"), capsys)
+    assert code == 0 and "0 done, 3 already finished" in stdout and "3 of 3 pairs already finished" in stderr
+    damaged = cameras / "out" / "0001.pfm"
+    damaged.write_bytes(damaged.read_bytes()[:-4] + b"\0\0\0\0")  # same size, other content
+    code, stdout, _ = run_cade(batch_args(cameras, "out"), capsys)
+    assert code == 0 and "1 done, 2 already finished" in stdout
+    assert [e["output"].endswith("0001.pfm") for e in log_of(cameras / "out")["pairs"] if e["status"] == "done"] == [True]
+    assert outputs(cameras / "out") == first
+    # Other options, other outputs: nothing is finished; --force redoes everything.
+    code, stdout, _ = run_cade(batch_args(cameras, "out", "--fill", "none"), capsys)
+    assert code == 0 and "3 done, 0 already finished" in stdout
+    code, stdout, _ = run_cade(batch_args(cameras, "out", "--fill", "none", "--force"), capsys)
+    assert code == 0 and "3 done, 0 already finished" in stdout
+
+
+def test_is_finished_checks_inputs_and_record(cameras, capsys):
+    assert run_cade(batch_args(cameras, "out"), capsys)[0] == 0
+    options = PairOptions(method="census-sgm", max_disp=16)
+    pair = Pair(cameras / "cam0" / "0000.png", cameras / "cam1" / "0000.png", cameras / "out" / "0000.pfm", options)
+    assert is_finished(pair)
+    assert not is_finished(Pair(pair.left, cameras / "cam1" / "0001.png", pair.output, options))  # another input
+    assert not is_finished(Pair(pair.left, pair.right, pair.output, PairOptions(method="census-sgm", max_disp=17)))
+    pair.record.write_text("{not json")
+    assert not is_finished(pair)
+
+
+def test_a_failing_pair_is_reported_and_the_rest_go_on(cameras, capsys):
+    (cameras / "cam1" / "0001.png").write_bytes(b"not an image")
+    code, stdout, stderr = run_cade(batch_args(cameras, "out"), capsys)
+    assert code == 1
+    assert "2 done, 0 already finished, 1 failed, of 3 pairs" in stdout
+    lines = stderr.strip().splitlines()
+    assert any(line.startswith("warning: pair") and "0001.png" in line for line in lines)
+    assert lines[-1].startswith("cade: error: 1 of 3 pairs failed")
+    assert sorted(outputs(cameras / "out")) == ["0000.pfm", "0002.pfm"]
+    failed = [entry for entry in log_of(cameras / "out")["pairs"] if entry["status"] == "failed"]
+    assert len(failed) == 1 and failed[0]["right"].endswith("0001.png") and "cannot decode" in failed[0]["error"]
+
+
+def test_two_jobs_give_the_bytes_of_one(cameras, capsys):
+    assert run_cade(batch_args(cameras, "one", "--validity", "--min-disp", "auto"), capsys)[0] == 0
+    code, stdout, _ = run_cade(batch_args(cameras, "two", "--validity", "--min-disp", "auto", "--jobs", 2), capsys)
+    assert code == 0 and "2 local job(s)" in stdout
+    assert outputs(cameras / "one") == outputs(cameras / "two") and len(outputs(cameras / "one")) == 6
+    workers = {entry["worker"] for entry in log_of(cameras / "two")["pairs"]}
+    assert len(workers) >= 1 and all(":" in worker for worker in workers)
+
+
+def test_dask_local_cluster_gives_the_bytes_of_the_jobs_run(cameras, capsys):
+    distributed = pytest.importorskip("distributed")
+    assert run_cade(batch_args(cameras, "jobs", "--jobs", 2), capsys)[0] == 0
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None, protocol="tcp") as cluster:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        code, stdout, _ = run_cade(batch_args(cameras, "dask", "--scheduler", cluster.scheduler_address), capsys)
+    assert code == 0 and "3 done" in stdout and "dask tcp://127.0.0.1" in stdout
+    assert outputs(cameras / "dask") == outputs(cameras / "jobs")
+
+
+def test_manifest_with_per_pair_range(cameras, capsys):
+    manifest = cameras / "pairs.csv"
+    manifest.write_text("left,right,output,max_disp\n"
+                        "cam0/0000.png,cam1/0000.png,m/first.pfm,\n"
+                        "cam0/0002.png,cam1/0002.png,m/third.npy,12\n")
+    code, stdout, _ = run_cade(["batch", "--manifest", manifest, *FAST], capsys)
+    assert code == 0 and "2 done" in stdout
+    log = json.loads((cameras / "pairs.log.json").read_text())
+    assert [tuple(entry["range"]) for entry in log["pairs"]] == [(0, 16), (0, 12)]
+    assert read_disparity(cameras / "m" / "third.npy").shape == (48, 96)
+
+
+def test_pairs_by_number_when_names_differ(tmp_path):
+    for side, name in (("a", "left_{}.png"), ("b", "right_{}.png")):
+        (tmp_path / side).mkdir()
+        for number in (3, 10):
+            write_png16(tmp_path / side / name.format(number), np.zeros((8, 8)))
+    pairs = pairs_from_patterns(str(tmp_path / "a/*.png"), str(tmp_path / "b/*.png"), tmp_path / "out",
+                                options=PairOptions())
+    assert [(p.left.name, p.right.name, p.output.name) for p in pairs] == [
+        ("left_10.png", "right_10.png", "left_10.pfm"), ("left_3.png", "right_3.png", "left_3.pfm")]
+    (tmp_path / "b" / "right_3.png").unlink()
+    with pytest.raises(CadeError, match="no partner"):
+        pairs_from_patterns(str(tmp_path / "a/*.png"), str(tmp_path / "b/*.png"), tmp_path / "out",
+                            options=PairOptions())
+
+
+def test_manifest_errors_name_the_line(tmp_path):
+    manifest = tmp_path / "pairs.csv"
+    manifest.write_text("left,right,output,max_disp\na.png,b.png,o.pfm,many\n")
+    with pytest.raises(CadeError, match=r"pairs.csv:2: --max-disp 'many'"):
+        pairs_from_manifest(manifest, options=PairOptions())
+    manifest.write_text("left,right\na.png,b.png\n")
+    with pytest.raises(CadeError, match="no column output"):
+        pairs_from_manifest(manifest, options=PairOptions())
+
+
+def test_stale_temporaries_of_a_killed_run_are_removed(cameras, capsys):
+    out = cameras / "out"
+    out.mkdir()
+    stale = out / ".0001.tmp-0123456789abcdef.pfm"
+    stale.write_bytes(b"half a map")
+    other = out / ".notes.tmp-0123456789abcdef.txt"  # not one of the batch's outputs: kept
+    other.write_bytes(b"x")
+    assert run_cade(batch_args(cameras, "out"), capsys)[0] == 0
+    assert not stale.exists() and other.exists()
+
+
+BAD_BATCHES = {
+    "nothing given": ([], "missing --left, --right, --output-dir"),
+    "both ways": (["--manifest", "m.csv", "--left", "a/*.png"], "either --manifest or"),
+    "pattern matches nothing": (["--left", "nowhere/*.png", "--right", "cam1/*.png", "-o", "out"], "matches no image"),
+    "jobs on a cluster": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--scheduler",
+                           "tcp://127.0.0.1:1", "--jobs", "2"], "drop --jobs"),
+    "bad format": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--format", "jpg"], "--format jpg"),
+    "bad max-disp": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--max-disp", "x"], "--max-disp"),
+    "unknown method": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--method", "magic"],
+                       "unknown method"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_BATCHES)
+def test_batch_errors_are_one_line(cameras, capsys, monkeypatch, case):
+    monkeypatch.chdir(cameras)
+    args, message = BAD_BATCHES[case]
+    code, _, stderr = run_cade(["batch", *args], capsys)
+    assert code != 0
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("cade: error:") and message in stderr
+
+
+def test_jobs_are_capped_by_memory():
+    gib = 2**30
+    assert cap_jobs(4, 3 * gib, available_bytes=8 * gib) == 2  # 0.8 x 8 GB holds two 3 GB jobs
+    assert cap_jobs(4, 30 * gib, available_bytes=8 * gib) == 1  # never below one
+    assert cap_jobs(2, 1 * gib, available_bytes=64 * gib) == 2  # never above the request
+    small, wide = (pair_memory_bytes("census-sgm", 1000, 1000, count) for count in (64, 256))
+    assert wide - small == 20 * 1000 * 1000 * 192  # the cost volume: 20 bytes per pixel and disparity
+    assert pair_memory_bytes("cade", 1000, 1000, 64) == pair_memory_bytes("cade", 1000, 1000, 256)  # strips
+
+
+def slow_pairs(root: Path, rng, count: int) -> list[Pair]:
+    """``count`` pairs big enough that a worker is still busy when the test acts."""
+    (root / "l").mkdir()
+    (root / "r").mkdir()
+    for index in range(count):
+        pair = render_pair(rng, (120, 240), background=(8.0, 0.0), foreground=(20.0, 0.0))
+        write_png16(root / "l" / f"{index}.png", pair.left)
+        write_png16(root / "r" / f"{index}.png", pair.right)
+    options = PairOptions(method="census-sgm", max_disp=48)
+    return [Pair(root / "l" / f"{i}.png", root / "r" / f"{i}.png", root / "out" / f"{i}.pfm", options)
+            for i in range(count)]
+
+
+def test_killed_workers_are_replaced_and_no_output_is_lost(tmp_path, rng):
+    import multiprocessing
+    import os
+    import signal
+
+    from cade_cli.batch import run_local
+
+    pairs = slow_pairs(tmp_path, rng, 6)
+    results = run_local(pairs, jobs=2, threads=1)
+    first = next(results)
+    for child in multiprocessing.active_children():  # both workers die, one of them mid-pair
+        os.kill(child.pid, signal.SIGKILL)
+    rest = list(results)
+    assert sorted(r.output for r in [first, *rest]) == sorted(str(p.output) for p in pairs)
+    assert all(r.status == "done" for r in [first, *rest]), [r.error for r in rest]
+    assert all(is_finished(pair) for pair in pairs)
+    assert not [p for p in (tmp_path / "out").iterdir() if ".tmp-" in p.name]
+
+
+def test_stopping_a_local_run_stops_its_workers_and_keeps_finished_outputs(tmp_path, rng):
+    import multiprocessing
+
+    from cade_cli.batch import run_local
+
+    pairs = slow_pairs(tmp_path, rng, 8)
+    results = run_local(pairs, jobs=2, threads=1)
+    first = next(results)
+    results.close()  # what an interruption of the consumer does: the workers are interrupted and joined
+    assert multiprocessing.active_children() == []
+    finished = [pair for pair in pairs if is_finished(pair)]
+    assert first.status == "done" and first.output in {str(pair.output) for pair in finished}
+    assert len(finished) < len(pairs)
+    assert not [p for p in (tmp_path / "out").iterdir() if ".tmp-" in p.name]
+
+
+def test_two_files_of_one_name_on_a_side_are_refused(tmp_path):
+    for folder in ("a/x", "a/y", "b"):
+        (tmp_path / folder).mkdir(parents=True)
+    for path in ("a/x/1.png", "a/y/1.png", "b/1.png"):
+        write_png16(tmp_path / path, np.zeros((8, 8)))
+    with pytest.raises(CadeError, match="two files named 1.png"):
+        pairs_from_patterns(str(tmp_path / "a/**/*.png"), str(tmp_path / "b/*.png"), tmp_path / "out",
+                            options=PairOptions())
