@@ -58,6 +58,7 @@ from cade_cli.evaluation.timing import use_threads
 from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES
 from cade_cli.range import AUTO, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
+from cade_cli.tiling import BASE_BYTES, available_memory_bytes, matching_memory_bytes
 
 RECORD_SUFFIX = ".cade.json"
 """The record of a finished pair: ``<output><RECORD_SUFFIX>`` beside its disparity file."""
@@ -69,13 +70,11 @@ MANIFEST_OPTIONAL = ("min_disp", "max_disp", "left_band", "right_band")
 ATTEMPTS = 2
 """Runs of a pair before its failure is reported: the first and one retry."""
 
-WORKER_BASE_BYTES = 250 * 2**20
-"""Resident memory of a worker before its first pair: Python, NumPy, OpenCV, onnxruntime."""
-PIXEL_BYTES = 200
-"""Per pixel of a pair: the bands, their transforms, the map, confidence, the temporaries
-of the stages and, for the CADE network, its strips' share. With the base the plan sits
-just above the measured peaks of ``cade``: 0.30 GiB against 0.25-0.27 GiB on 640x480
-(docs/scale.md, "Throughput"), 1.46 GB against 1.45 GB on 6 megapixels (models/README.md)."""
+WORKER_BASE_BYTES = BASE_BYTES
+"""Resident memory of a worker before its first pair: Python, NumPy, OpenCV, onnxruntime.
+With :data:`~cade_cli.tiling.PIXEL_BYTES` per pixel the plan sits just above the measured
+peaks of ``cade``: 0.30 GiB against 0.25-0.27 GiB on 640x480 (docs/scale.md, "Throughput"),
+1.46 GB against 1.45 GB on 6 megapixels (models/README.md)."""
 MEMORY_HEADROOM = 0.8
 """Share of the available memory the workers may plan to use."""
 
@@ -473,24 +472,7 @@ def pair_memory_bytes(method: str, width: int, height: int, disparities: int) ->
     pair over ``disparities`` levels with ``method``: the worker's base, the per-pixel
     arrays, and the matcher's cost volume (:attr:`~cade_cli.matching.Matcher.volume_bytes`
     per pixel and disparity; 0 for the learned methods, whose strips bound it)."""
-    from cade_cli.matching import get_matcher
-
-    pixels = width * height
-    volume = get_matcher(method).volume_bytes * pixels * disparities
-    return int(WORKER_BASE_BYTES + PIXEL_BYTES * pixels + volume)
-
-
-def available_memory_bytes() -> int:
-    """Memory available to new processes (``MemAvailable`` of /proc/meminfo, else the
-    physical memory)."""
-    try:
-        with open("/proc/meminfo") as stream:
-            for line in stream:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    return int(WORKER_BASE_BYTES + matching_memory_bytes(method, width, height, disparities))
 
 
 def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) -> int:

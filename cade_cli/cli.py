@@ -88,6 +88,12 @@ ModelOption = Annotated[
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
 ]
+MemoryLimitOption = Annotated[
+    Optional[str],
+    typer.Option("--memory-limit", help="Memory budget, like 4GB or 512MB (default: half the memory available). A "
+                 "pair that does not fit it whole is matched as overlapping tiles, each with a range seeded from a "
+                 "coarse pass (docs/scale.md, \"Tiling\").", show_default=False),
+]
 PreprocessOption = Annotated[
     str,
     typer.Option(
@@ -112,6 +118,7 @@ def disparity(
     min_disp: MinDispAutoOption = "0",
     preprocess: PreprocessOption = "auto",
     model: ModelOption = None,
+    memory_limit: MemoryLimitOption = None,
     vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
     left_band: Annotated[Optional[int], _band_option("left")] = None,
     right_band: Annotated[Optional[int], _band_option("right")] = None,
@@ -156,13 +163,16 @@ def disparity(
     from cade_cli.atomic import atomic_outputs
     from cade_cli.errors import CadeError
     from cade_cli.matching import densify, get_matcher
-    from cade_cli.stereo import estimate_disparity
+    from cade_cli.tiling import estimate_disparity_tiled, plan_tiles
 
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
     min_disp, max_disp = _parse_range_options(min_disp, max_disp)
     if rig_file is not None and "auto" in (min_disp, max_disp):
         raise CadeError("--min-disp/--max-disp auto do not work with --rig yet; give the range in rectified px")
+    if rig_file is not None and memory_limit is not None:
+        raise CadeError("--memory-limit does not work with --rig yet; drop it (the rectified pair is matched whole)")
+    budget = _parse_memory_limit(memory_limit)
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
     if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
         raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
@@ -193,9 +203,13 @@ def disparity(
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     min_disp, max_disp = _resolve_range_options(min_disp, max_disp, left_image, right_image)
-    result = estimate_disparity(
+    plan = plan_tiles(left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
+                      memory_limit=budget, model=model)
+    if plan.tiled:
+        _note(plan.describe())
+    result, _ = estimate_disparity_tiled(
         left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
-        model=model,
+        model=model, memory_limit=budget, plan=plan,
     )
     seconds = time.perf_counter() - started
     preprocess = get_matcher(method).resolve_preprocess(preprocess)
@@ -1009,6 +1023,13 @@ def _resolve_range_options(min_disp: int | str, max_disp: int | str | None, left
     searched, estimate = resolve_range(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
     _note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
     return searched.minimum, searched.maximum
+
+
+def _parse_memory_limit(memory_limit: str | None) -> int:
+    """--memory-limit in bytes (:func:`cade_cli.tiling.parse_memory`); None: the default budget."""
+    from cade_cli.tiling import default_memory_limit, parse_memory
+
+    return default_memory_limit() if memory_limit is None else parse_memory(memory_limit)
 
 
 def _check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching import DisparityRange
+from cade_cli.matching import DisparityRange, DisparityResult
 from cade_cli.stereo import estimate_disparity
 
 AUTO = "auto"
@@ -94,28 +94,36 @@ def range_margin(low: float, high: float, factor: int) -> float:
     return max(MARGIN_SHARE * (high - low), MARGIN_COARSE_PX * factor)
 
 
-def estimate_range(
+@dataclass(frozen=True)
+class CoarseMatch:
+    """The coarse level's match (:func:`coarse_match`).
+
+    Attributes:
+        result: the coarse pair's :class:`~cade_cli.matching.DisparityResult`, px of the
+            coarse level (multiply by ``scale`` for px of the input images).
+        factor: downscale of the coarse level (1, 2, 4, ...).
+        scale: input width / coarse width (``factor``, up to rounding).
+    """
+
+    result: DisparityResult
+    factor: int
+    scale: float
+
+
+def coarse_match(
     left: np.ndarray,
     right: np.ndarray,
     *,
     min_disp: int | None = None,
     max_disp: int | None = None,
-) -> RangeEstimate:
-    """Estimate the disparity range of a rectified pair from a coarse pyramid level.
-
-    Args:
-        left, right: (H, W) float bands of one rectified pair, any units; they may come
-            from different spectral filters.
-        min_disp, max_disp: bounds the caller fixed (px, inclusive); None: estimate it.
-            With ``min_disp`` None the minimum may come out negative (pairs registered
-            to a plane); with both None both are estimated.
-
-    Returns:
-        :class:`RangeEstimate`; its ``range`` keeps the given bounds as they are.
+) -> CoarseMatch:
+    """Steps 1 and 2 of the estimate: the pair downscaled by :func:`coarse_factor` and
+    matched by :data:`COARSE_METHOD` on colour-agnostic bands, over the bounds given (px of
+    the input images; None: open on that side), the right band as it is and inverted (the
+    polarity that matches more pixels wins).
 
     Raises:
-        CadeError: bad shapes, given bounds that leave nothing to search, or a pair with
-            too few matchable pixels to estimate from (name the range instead).
+        CadeError: bad shapes, a pair too small, or bounds that leave nothing to search.
     """
     left, right = np.asarray(left, np.float32), np.asarray(right, np.float32)
     if left.ndim != 2 or left.shape != right.shape:
@@ -140,18 +148,56 @@ def estimate_range(
     # contrast inversion (a material bright in one band and dark in the other): the right
     # band is matched as it is and inverted, and the polarity that matches more pixels wins.
     flipped = float(coarse_right.max()) + float(coarse_right.min()) - coarse_right
-    coarse = max((estimate_disparity(coarse_left, band, method=COARSE_METHOD, min_disp=low, max_disp=high,
+    result = max((estimate_disparity(coarse_left, band, method=COARSE_METHOD, min_disp=low, max_disp=high,
                                      preprocess="cade") for band in (coarse_right, flipped)),
-                 key=lambda result: int(result.valid.sum()))
-    matched = coarse.valid & np.isfinite(coarse.disparity)
-    found, confidence = coarse.disparity[matched], coarse.confidence[matched]
-    valid_share = found.size / coarse.disparity.size
+                 key=lambda found: int(found.valid.sum()))
+    return CoarseMatch(result, factor, scale)
+
+
+def confident_bounds(found: np.ndarray, confidence: np.ndarray, scale: float) -> tuple[float, float]:
+    """Step 3 before the margin: the robust (low, high) percentiles of the more confident half
+    of coarse estimates ``found`` (px of the coarse level, with their ``confidence``), in px
+    of the input images (times ``scale``)."""
+    confident = found[confidence >= np.quantile(confidence, CONFIDENT_QUANTILE)]
+    low, high = np.percentile(confident, [LOW_PERCENTILE, HIGH_PERCENTILE])
+    return float(low) * scale, float(high) * scale
+
+
+def estimate_range(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    min_disp: int | None = None,
+    max_disp: int | None = None,
+) -> RangeEstimate:
+    """Estimate the disparity range of a rectified pair from a coarse pyramid level.
+
+    Args:
+        left, right: (H, W) float bands of one rectified pair, any units; they may come
+            from different spectral filters.
+        min_disp, max_disp: bounds the caller fixed (px, inclusive); None: estimate it.
+            With ``min_disp`` None the minimum may come out negative (pairs registered
+            to a plane); with both None both are estimated.
+
+    Returns:
+        :class:`RangeEstimate`; its ``range`` keeps the given bounds as they are.
+
+    Raises:
+        CadeError: bad shapes, given bounds that leave nothing to search, or a pair with
+            too few matchable pixels to estimate from (name the range instead).
+    """
+    left, right = np.asarray(left, np.float32), np.asarray(right, np.float32)
+    coarse = coarse_match(left, right, min_disp=min_disp, max_disp=max_disp)
+    width = left.shape[1]
+    factor, scale = coarse.factor, coarse.scale
+    matched = coarse.result.valid & np.isfinite(coarse.result.disparity)
+    found, confidence = coarse.result.disparity[matched], coarse.result.confidence[matched]
+    valid_share = found.size / coarse.result.disparity.size
     if valid_share < MIN_VALID_SHARE or found.size < 16:
         raise CadeError(f"could not estimate the disparity range: only {100 * valid_share:.1f}% of the pair "
                         "matched at the coarse level (blank, unrelated or unrectified images?); give --max-disp "
                         "and --min-disp")
-    confident = found[confidence >= np.quantile(confidence, CONFIDENT_QUANTILE)]
-    found_low, found_high = (float(v) * scale for v in np.percentile(confident, [LOW_PERCENTILE, HIGH_PERCENTILE]))
+    found_low, found_high = confident_bounds(found, confidence, scale)
     margin = range_margin(found_low, found_high, factor)
     minimum = min_disp if min_disp is not None else max(-(width - 1), math.floor(found_low - margin))
     maximum = max_disp if max_disp is not None else min(width - 1, math.ceil(found_high + margin))

@@ -90,6 +90,10 @@ def onnx_session(path: Path, sha256: str):
     # The matcher hands the cores to OpenCV (refinement) right after each run; spinning
     # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
     options.add_session_config_entry(ALLOW_SPINNING, "0")
+    # No arena: it keeps the peak of every input shape it has seen, so tiles of many shapes
+    # (cade_cli.tiling) grew the process past its budget (docs/scale.md, "Tiling"); the
+    # run time of a pair is the same without it.
+    options.enable_cpu_mem_arena = False
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 

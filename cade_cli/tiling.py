@@ -1,0 +1,383 @@
+"""Any image size in bounded memory: a pair matched as overlapping tiles (``--memory-limit``).
+
+As Ames Stereo Pipeline's ``parallel_stereo`` and CNES CARS do, a pair too large for the
+memory budget is cut into tiles of the left image, each matched on its own with its own
+disparity range, seeded from a low-resolution pass over the whole pair:
+
+1. **The coarse pass.** :func:`cade_cli.range.coarse_match` matches the pair at a coarse
+   pyramid level (the pass behind ``--max-disp auto``) over the range asked for.
+2. **The layout.** Tiles are a grid of square cores of the left image (the last row and
+   column of cores are as large as the others, overlapping their neighbours' cores where
+   the image does not divide evenly; there the later tile's values are kept). Each core is
+   matched inside a window: the core plus a ``collar`` on every side, widened on the left
+   by the tile's largest disparity and on the right by its most negative one, so every
+   pixel of the core finds its match (I_left(y, x) ~ I_right(y, x - d)) inside the window.
+   Left and right are cropped to the same window, so disparities are unchanged; at an image
+   border the window shifts inwards and keeps its width.
+3. **The ranges.** A tile's range is :func:`cade_cli.range.confident_bounds` of the coarse
+   estimates over its core and collar, widened by :func:`cade_cli.range.range_margin`, and
+   kept within the range asked for; a tile with too few coarse estimates searches that
+   whole range.
+4. **The size.** The largest core (from the image's longer side down by :data:`SIDE_STEP`
+   each time, to :data:`MIN_CORE`) whose every window fits the budget by :func:`tile_memory_bytes`
+   (the registry's :attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel and
+   disparity, plus :data:`PIXEL_BYTES` per pixel, plus a learned method's network strip), after the process's base and the
+   whole-image arrays (:data:`IMAGE_BYTES` per pixel) are set aside.
+5. **The match and the stitch.** Each window goes through
+   :func:`cade_cli.stereo.estimate_disparity` (the one matching path); the core's part of
+   its disparity, validity and confidence is copied into the output, the collar dropped.
+
+When the whole pair fits the budget, :func:`estimate_disparity_tiled` is exactly
+:func:`~cade_cli.stereo.estimate_disparity`. Tiles differ from the untiled map only where
+a matcher's context (SGM paths, the network's receptive field, the LR check, the range)
+reaches past a window; ``benchmarks/tiling.py`` measures it (docs/scale.md, "Tiling").
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from cade_cli.errors import CadeError
+from cade_cli.matching import DisparityRange, DisparityResult, get_matcher
+from cade_cli.matching.base import check_pair
+from cade_cli.matching.learned import LearnedPipeline
+from cade_cli.matching.network import STRIP_PIXELS
+from cade_cli.range import coarse_match, confident_bounds, range_margin
+from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, MEMORY_LIMIT_BYTES, estimate_disparity
+
+PIXEL_BYTES = 200
+"""Per pixel of a matched pair: the bands, their transforms, the map, confidence, the
+temporaries of the stages and, for the CADE network, its strips' share (docs/scale.md,
+"Jobs and memory": the plan sits just above measured peaks of ``cade``)."""
+BASE_BYTES = 250 * 2**20
+"""Resident memory of a process before its first pair: Python, NumPy, OpenCV, onnxruntime."""
+IMAGE_BYTES = 24
+"""Per pixel of the whole pair while it is tiled: both bands (float32), the stitched
+disparity, confidence and validity, and the dense copy the command writes."""
+NETWORK_LEVEL_BYTES = 6
+"""For the learned methods, bytes the network holds per pixel of a strip and level of its
+variant (about 1 GB at 128 levels and 2.3 GB at 256 on a full strip of
+:data:`~cade_cli.matching.network.STRIP_PIXELS`, :mod:`cade_cli.matching.network`)."""
+MEMORY_SHARE = 0.5
+"""Default budget: this share of the memory available (``MemAvailable``)."""
+COLLAR = 32
+"""Px added on every side of a core and dropped after matching: the context a matcher's
+windows, SGM paths and checks use near the core's edge."""
+MIN_CORE = 32
+"""Smallest core side tried, px."""
+SIDE_STEP = 0.75
+"""Core sides tried: the image's longer side, then this factor smaller each time (multiples of 16 px)."""
+MIN_TILE_ESTIMATES = 16
+"""A tile with fewer coarse estimates than this searches the whole range asked for."""
+
+_UNITS = {"": 1, "B": 1, "K": 2**10, "KB": 2**10, "KIB": 2**10, "M": 2**20, "MB": 2**20, "MIB": 2**20,
+          "G": 2**30, "GB": 2**30, "GIB": 2**30, "T": 2**40, "TB": 2**40, "TIB": 2**40}
+
+
+def parse_memory(text: str) -> int:
+    """A memory size as a user writes it (``4GB``, ``512MB``, ``1.5G``, ``2GiB``; 1 GB = 2**30
+    bytes) in bytes.
+
+    Raises:
+        CadeError: anything else, or a size of zero.
+    """
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([A-Za-z]*)\s*", str(text))
+    unit = match.group(2).upper() if match else None
+    if match is None or unit not in _UNITS:
+        raise CadeError(f"--memory-limit {text!r} is not a memory size; write it like 4GB or 512MB")
+    size = int(float(match.group(1)) * _UNITS[unit])
+    if size <= 0:
+        raise CadeError(f"--memory-limit {text!r} is zero; give a positive size like 4GB")
+    return size
+
+
+def available_memory_bytes() -> int:
+    """Memory available to new processes (``MemAvailable`` of /proc/meminfo, else the
+    physical memory)."""
+    import os
+
+    try:
+        with open("/proc/meminfo") as stream:
+            for line in stream:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def default_memory_limit() -> int:
+    """The budget when none is given: :data:`MEMORY_SHARE` of the available memory, bytes."""
+    return int(MEMORY_SHARE * available_memory_bytes())
+
+
+def matching_memory_bytes(method: str, width: int, height: int, disparities: int) -> int:
+    """Planned memory (bytes) of matching one ``width`` x ``height`` pair over
+    ``disparities`` levels with ``method``, beyond the process's base: :data:`PIXEL_BYTES`
+    per pixel plus the matcher's cost volume (:attr:`~cade_cli.matching.Matcher.volume_bytes`
+    per pixel and disparity; 0 for the learned methods, whose strips bound it)."""
+    pixels = width * height
+    return int(PIXEL_BYTES * pixels + get_matcher(method).volume_bytes * pixels * disparities)
+
+
+@functools.lru_cache(maxsize=8)
+def widest_network_levels(method: str, model: str | None = None) -> int:
+    """Levels of the widest variant of ``method``'s network (0 for a classical matcher)."""
+    kernel = get_matcher(method, model=model).kernel
+    if not isinstance(kernel, LearnedPipeline):
+        return 0
+    return max(variant.levels for variant in kernel.network.card().variants)
+
+
+def tile_memory_bytes(method: str, width: int, height: int, disparities: int, *, model: str | None = None) -> int:
+    """What a ``width`` x ``height`` window (or the whole pair) is planned to take when tiling:
+    :func:`matching_memory_bytes`, plus for a learned method its network's largest strip
+    (:data:`NETWORK_LEVEL_BYTES` per pixel, up to
+    :data:`~cade_cli.matching.network.STRIP_PIXELS`, and level of the widest variant): on
+    a large window the strip, not the pixels, dominates."""
+    strip = min(width * height, STRIP_PIXELS)
+    return (matching_memory_bytes(method, width, height, disparities)
+            + NETWORK_LEVEL_BYTES * strip * widest_network_levels(method, model))
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile: the core it fills and the window it is matched in (rows and columns as
+    half-open (start, stop) px of the left image), and the range it searches."""
+
+    core_rows: tuple[int, int]
+    core_columns: tuple[int, int]
+    window_rows: tuple[int, int]
+    window_columns: tuple[int, int]
+    range: DisparityRange
+    seeded: bool
+    """True when the range came from the coarse pass, False when it is the whole range."""
+
+    @property
+    def window_size(self) -> tuple[int, int]:
+        """(width, height) of the window, px."""
+        return (self.window_columns[1] - self.window_columns[0], self.window_rows[1] - self.window_rows[0])
+
+
+@dataclass(frozen=True)
+class TilePlan:
+    """How a pair is matched: ``tiles`` empty when it is matched whole."""
+
+    tiles: tuple[Tile, ...]
+    core: int
+    collar: int
+    memory_limit: int
+    peak_tile_bytes: int
+    """The largest :func:`tile_memory_bytes` of a tile (of the whole pair when untiled)."""
+
+    @property
+    def tiled(self) -> bool:
+        return bool(self.tiles)
+
+    def describe(self) -> str:
+        """One line for the user."""
+        if not self.tiled:
+            return f"matched whole, within --memory-limit {self.memory_limit / 2**30:.1f} GB"
+        seeded = sum(tile.seeded for tile in self.tiles)
+        return (f"the pair does not fit --memory-limit {self.memory_limit / 2**30:.1f} GB whole: matching it as "
+                f"{len(self.tiles)} tiles of {self.core}x{self.core} px (+{self.collar} px collar; up to "
+                f"{self.peak_tile_bytes / 2**30:.2f} GB each), {seeded} with a range seeded from a coarse pass")
+
+
+def core_starts(length: int, core: int) -> list[int]:
+    """Starts of cores ``core`` px long covering [0, ``length``); the last one ends at
+    ``length`` (overlapping its neighbour when ``length`` is not a multiple)."""
+    if core >= length:
+        return [0]
+    starts = list(range(0, length - core, core))
+    return starts + [length - core]
+
+
+def seeded_range(coarse, rows: tuple[int, int], columns: tuple[int, int], whole: DisparityRange) -> DisparityRange | None:
+    """The range of the coarse estimates over ``rows`` x ``columns`` (px of the input images)
+    plus the margin, within ``whole``; None when they are too few."""
+    scale = coarse.scale
+    result = coarse.result
+    height, width = result.disparity.shape
+    top, bottom = max(0, math.floor(rows[0] / scale) - 1), min(height, math.ceil(rows[1] / scale) + 1)
+    left, right = max(0, math.floor(columns[0] / scale) - 1), min(width, math.ceil(columns[1] / scale) + 1)
+    disparity = result.disparity[top:bottom, left:right]
+    matched = result.valid[top:bottom, left:right] & np.isfinite(disparity)
+    if matched.sum() < MIN_TILE_ESTIMATES:
+        return None
+    low, high = confident_bounds(disparity[matched], result.confidence[top:bottom, left:right][matched], scale)
+    margin = range_margin(low, high, coarse.factor)
+    minimum = min(whole.maximum - 1, max(whole.minimum, math.floor(low - margin)))
+    maximum = max(minimum + 1, min(whole.maximum, math.ceil(high + margin)))
+    return DisparityRange(minimum, maximum)
+
+
+def make_tile(rows: tuple[int, int], columns: tuple[int, int], shape: tuple[int, int], chosen: DisparityRange,
+              seeded: bool, collar: int) -> Tile:
+    """The tile of a core: its window (collar, plus the range on the left and right) and
+    the range, kept within what the window can hold."""
+    height, width = shape
+    window_rows = (max(0, rows[0] - collar), min(height, rows[1] + collar))
+    # the core, the range on either side and the collars; shifted inwards at an image border,
+    # so a window keeps its width (the matchers need columns beyond the widest disparity)
+    need = columns[1] - columns[0] + max(chosen.maximum, 0) - min(chosen.minimum, 0) + 2 * collar
+    start = max(0, min(columns[0] - max(chosen.maximum, 0) - collar, width - need))
+    window_columns = (start, min(width, start + need))
+    reach = window_columns[1] - window_columns[0] - 1  # |d| must stay below the window's width
+    minimum, maximum = max(chosen.minimum, -reach), min(chosen.maximum, reach)
+    maximum = max(maximum, 1, minimum + 1)
+    return Tile(rows, columns, window_rows, window_columns, DisparityRange(minimum, maximum), seeded)
+
+
+def plan_tiles(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    method: str = DEFAULT_METHOD,
+    min_disp: int = 0,
+    max_disp: int,
+    memory_limit: int,
+    collar: int = COLLAR,
+    core: int | None = None,
+    seed: bool = True,
+    model: str | None = None,
+) -> TilePlan:
+    """The tiles :func:`estimate_disparity_tiled` matches (none when the pair fits whole).
+
+    Args:
+        left, right: (H, W) bands of the pair.
+        method: a registered matcher.
+        min_disp, max_disp: the inclusive range asked for, px.
+        memory_limit: budget, bytes, for the whole process.
+        collar: px of context around each core.
+        core: force this core side (px) and tile even when the pair fits; None: the
+            largest that fits the budget.
+        seed: seed each tile's range from the coarse pass; False: every tile searches the
+            whole range (to measure what the seams alone change).
+        model: the network of a learned method (its widest variant enters the plan).
+
+    Raises:
+        CadeError: a budget too small for the smallest tiles (the message says how much
+            they need), or a forced ``core`` whose tiles do not fit.
+    """
+    left, right = check_pair(left, right, min_size=get_matcher(method).min_size)
+    height, width = left.shape
+    whole = DisparityRange(int(min_disp), int(max_disp))
+    whole.check_for_width(width)
+    untiled = tile_memory_bytes(method, width, height, whole.count, model=model)
+    volume = get_matcher(method).volume_bytes * width * height * whole.count
+    if core is None and BASE_BYTES + untiled <= memory_limit and volume <= MEMORY_LIMIT_BYTES:
+        return TilePlan((), max(width, height), 0, memory_limit, untiled)
+    budget = memory_limit - BASE_BYTES - IMAGE_BYTES * width * height
+    volume_bytes = get_matcher(method).volume_bytes
+    coarse = None  # none, or too small or too blank to seed: every tile searches the whole range
+    if seed:
+        try:
+            coarse = coarse_match(left, right, min_disp=whole.minimum, max_disp=whole.maximum)
+        except CadeError:
+            pass
+    sides = [core] if core is not None else [max(width, height)]
+    while sides[-1] > MIN_CORE and core is None:
+        sides.append(max(MIN_CORE, int(sides[-1] * SIDE_STEP) // 16 * 16))
+    needed = None
+    for side in sides:
+        tiles = []
+        for top in core_starts(height, side):
+            for first in core_starts(width, side):
+                rows, columns = (top, min(height, top + side)), (first, min(width, first + side))
+                context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + collar))
+                seeded = None if coarse is None else seeded_range(coarse, *context, whole)
+                tiles.append(make_tile(rows, columns, (height, width), seeded or whole, seeded is not None, collar))
+        peak = max(tile_memory_bytes(method, *tile.window_size, tile.range.count, model=model) for tile in tiles)
+        volume = max(volume_bytes * math.prod(tile.window_size) * tile.range.count for tile in tiles)
+        if peak <= budget and volume <= MEMORY_LIMIT_BYTES:
+            return TilePlan(tuple(tiles), side, collar, memory_limit, peak)
+        needed = peak
+    raise CadeError(
+        f"a {width}x{height} pair over {whole.count} disparities does not fit --memory-limit "
+        f"{memory_limit / 2**30:.2f} GB even as {sides[-1]}x{sides[-1]} px tiles (they need about "
+        f"{(needed + BASE_BYTES + IMAGE_BYTES * width * height) / 2**30:.2f} GB); raise --memory-limit or "
+        f"lower --max-disp")
+
+
+def seam_distance(plan: TilePlan, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) float32: each pixel's distance (px) to the nearest seam of ``plan``, where the
+    stitched map passes from one tile's values to another's (image borders are no seams;
+    +inf everywhere when the pair was matched whole)."""
+    import cv2
+
+    if not plan.tiled:
+        return np.full(shape, np.inf, np.float32)
+    owner = np.zeros(shape, np.int32)
+    for index, tile in enumerate(plan.tiles):
+        owner[slice(*tile.core_rows), slice(*tile.core_columns)] = index
+    seam = np.zeros(shape, bool)
+    seam[:, 1:] |= owner[:, 1:] != owner[:, :-1]
+    seam[1:, :] |= owner[1:, :] != owner[:-1, :]
+    return cv2.distanceTransform((~seam).astype(np.uint8), cv2.DIST_L2, 3)
+
+
+def estimate_disparity_tiled(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    method: str = DEFAULT_METHOD,
+    min_disp: int = 0,
+    max_disp: int,
+    memory_limit: int,
+    preprocess: str = DEFAULT_PREPROCESS,
+    model: str | None = None,
+    collar: int = COLLAR,
+    core: int | None = None,
+    seed: bool = True,
+    plan: TilePlan | None = None,
+) -> tuple[DisparityResult, TilePlan]:
+    """:func:`~cade_cli.stereo.estimate_disparity` within a memory budget: whole when the
+    pair fits, else tile by tile (:func:`plan_tiles`) and stitched.
+
+    Args:
+        left, right: (H, W) float bands of one rectified pair.
+        method, preprocess, model: as for :func:`~cade_cli.stereo.estimate_disparity`.
+        min_disp, max_disp: the inclusive range, px.
+        memory_limit: budget for the whole process, bytes.
+        collar, core, seed: see :func:`plan_tiles`.
+        plan: a plan made already by :func:`plan_tiles` for this pair (skips planning).
+
+    Returns:
+        (the unfilled :class:`~cade_cli.matching.DisparityResult` of the whole left view,
+        the plan followed).
+    """
+    if plan is None:
+        plan = plan_tiles(left, right, method=method, min_disp=min_disp, max_disp=max_disp,
+                          memory_limit=memory_limit, collar=collar, core=core, seed=seed, model=model)
+    if not plan.tiled:
+        result = estimate_disparity(left, right, method=method, min_disp=min_disp, max_disp=max_disp,
+                                    preprocess=preprocess, model=model)
+        return result, plan
+    left, right = check_pair(left, right, min_size=get_matcher(method).min_size)
+    disparity = np.full(left.shape, np.nan, np.float32)
+    valid = np.zeros(left.shape, bool)
+    confidence: np.ndarray | None = np.zeros(left.shape, np.float32)
+    for tile in plan.tiles:
+        (top, bottom), (first, last) = tile.window_rows, tile.window_columns
+        found = estimate_disparity(left[top:bottom, first:last], right[top:bottom, first:last], method=method,
+                                   min_disp=tile.range.minimum, max_disp=tile.range.maximum,
+                                   preprocess=preprocess, model=model)
+        core = (slice(*tile.core_rows), slice(*tile.core_columns))
+        inside = (slice(tile.core_rows[0] - top, tile.core_rows[1] - top),
+                  slice(tile.core_columns[0] - first, tile.core_columns[1] - first))
+        disparity[core], valid[core] = found.disparity[inside], found.valid[inside]
+        if confidence is not None and found.confidence is not None:
+            confidence[core] = found.confidence[inside]
+        else:
+            confidence = None
+    return DisparityResult(disparity, valid, confidence), plan
+
+
+__all__ = ["TilePlan", "Tile", "estimate_disparity_tiled", "matching_memory_bytes",
+           "parse_memory", "plan_tiles", "tile_memory_bytes", "default_memory_limit", "seam_distance"]
