@@ -17,6 +17,7 @@ read back; the other fields document the model.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from dataclasses import dataclass
@@ -84,10 +85,18 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
         CadeError: the card is missing or malformed (the message names the file and the fix).
     """
     path = card_path(model, folder)
-    name = path.stem
     if not path.is_file():
         raise CadeError(f"model card {path} not found; give the path of a model's .json card, or set "
-                        f"{MODEL_DIR_ENV} to the folder holding {name}.json")
+                        f"{MODEL_DIR_ENV} to the folder holding {path.stem}.json")
+    stat = path.stat()
+    return _parse_card(path, stat.st_mtime_ns, stat.st_size)
+
+
+@functools.lru_cache(maxsize=16)
+def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
+    """The card at ``path``, parsed once per version of the file (``mtime_ns`` and ``size``
+    key the cache): the matcher asks for it on every pair and every tile."""
+    name = path.stem
     try:
         card = json.loads(path.read_text())
         if card.get("format", 1) != CARD_FORMAT:

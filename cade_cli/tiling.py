@@ -270,11 +270,11 @@ def plan_tiles(
     whole = DisparityRange(int(min_disp), int(max_disp))
     whole.check_for_width(width)
     untiled = tile_memory_bytes(method, width, height, whole.count, model=model)
-    volume = get_matcher(method).volume_bytes * width * height * whole.count
+    volume_bytes = get_matcher(method).volume_bytes
+    volume = volume_bytes * width * height * whole.count
     if core is None and BASE_BYTES + untiled <= memory_limit and volume <= MEMORY_LIMIT_BYTES:
         return TilePlan((), max(width, height), 0, memory_limit, untiled)
     budget = memory_limit - BASE_BYTES - IMAGE_BYTES * width * height
-    volume_bytes = get_matcher(method).volume_bytes
     coarse = None  # none, or too small or too blank to seed: every tile searches the whole range
     if seed:
         try:
