@@ -9,7 +9,8 @@ disparity, EPE and bad-2 on non-occluded pixels (the reader's ``nonocc``:
 ``mask0nocc.png == 255`` and finite GT), per method and per scene.
 
 Methods:
-    census-sgm, zncc-sgm, sgbm   ``cade_cli.matching.MATCHERS[name]`` on the raw bands.
+    census-sgm, zncc-sgm,        ``cade_cli.matching.MATCHERS[name]`` on the raw bands.
+    dasc-sgm, sgbm
     cade                         the CADE network (onnxruntime), color agnostic transform included.
     pandora-census-sgm           Pandora 1.9 + libsgm plugin, configured like cade's
                                  census-sgm (see :func:`pandora_pipeline_config`), its
@@ -44,7 +45,7 @@ from pathlib import Path
 
 from cade_cli.evaluation.timing import THREAD_VARIABLES  # light: NumPy is not loaded yet
 
-ALL_METHODS = ("census-sgm", "zncc-sgm", "sgbm", "cade", "pandora-census-sgm")
+ALL_METHODS = ("census-sgm", "zncc-sgm", "dasc-sgm", "sgbm", "cade", "pandora-census-sgm")
 PANDORA = "pandora-census-sgm"
 
 # cade's census-sgm settings (cade_cli.matching.classical.census_sgm), used when they

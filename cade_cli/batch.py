@@ -3,11 +3,14 @@
 A batch is a list of :class:`Pair` (from two glob patterns matched by file name,
 :func:`pairs_from_patterns`, or a manifest CSV, :func:`pairs_from_manifest`). Each pair
 is one job, :func:`run_pair`: it reads the two bands, resolves the range (``auto`` bounds
-by :func:`cade_cli.range.resolve_range`), calls :func:`cade_cli.stereo.estimate_disparity`
-(the one matching code path) and writes every output of the pair with
+by :func:`cade_cli.range.resolve_range`), calls :func:`cade_cli.tiling.estimate_disparity_tiled`
+(the path of ``cade disparity``: the pair matched whole when it fits ``--memory-limit``,
+else as tiles) or, with a rig, :func:`cade_cli.rig_pair.match_rig_pair` (the path of
+``cade disparity --rig``), and writes every output of the pair with
 :func:`cade_cli.atomic.atomic_outputs`: the disparity, the optional visualisation,
-validity and confidence, and last a *record* beside the disparity (``<output>.cade.json``)
-that holds the sha256 of the inputs and of every output and the options that made them.
+validity, confidence, depth and points, and last a *record* beside the disparity
+(``<output>.cade.json``) that holds the sha256 of the inputs and of every output and the
+options that made them.
 
 Resume: a pair is finished when its record is there, names the same inputs (by sha256) and
 options, and every output it lists is there with the sha256 it lists
@@ -26,8 +29,9 @@ Engines (both yield :class:`PairResult` as pairs finish):
   package), one task per pair, results streamed back in order of completion, a failed
   task retried once by the scheduler.
 
-:func:`cap_jobs` limits the worker count so that jobs x a pair's peak memory
-(:func:`pair_memory_bytes`) fits the memory available.
+:func:`cap_jobs` limits the worker count so that jobs x a job's peak memory fits the memory
+available: the planned memory of the largest pair (:func:`planned_pair_memory`), or the
+memory limit when that is smaller (a worker tiles a pair that does not fit it).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ from __future__ import annotations
 import collections
 import csv
 import datetime
+import functools
 import glob
 import json
 import multiprocessing
@@ -44,7 +49,7 @@ import re
 import signal
 import socket
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -58,13 +63,17 @@ from cade_cli.evaluation.timing import use_threads
 from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES
 from cade_cli.range import AUTO, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
-from cade_cli.tiling import BASE_BYTES, available_memory_bytes, matching_memory_bytes
+from cade_cli.tiling import BASE_BYTES, available_memory_bytes, default_memory_limit, matching_memory_bytes
 
 RECORD_SUFFIX = ".cade.json"
 """The record of a finished pair: ``<output><RECORD_SUFFIX>`` beside its disparity file."""
 RECORD_FORMAT = 1
-SIDE_OUTPUTS: dict[str, str] = {"vis": "_vis.png", "validity": "_validity.png", "confidence": "_confidence.tif"}
-"""Optional outputs of a pair, named after its disparity file: ``<stem><suffix>``."""
+SIDE_OUTPUTS: dict[str, str] = {"vis": "_vis.png", "validity": "_validity.png", "confidence": "_confidence.tif",
+                                "depth": "_depth.tif", "points": "_points.ply"}
+"""Optional outputs of a pair, named after its disparity file: ``<stem><suffix>`` (depth and
+points need a rig)."""
+RIG_ONLY = ("camera", "frame", "fix_vertical", "depth", "points")
+"""The :class:`PairOptions` that need ``rig``."""
 MANIFEST_COLUMNS = ("left", "right", "output")
 MANIFEST_OPTIONAL = ("min_disp", "max_disp", "left_band", "right_band")
 ATTEMPTS = 2
@@ -84,8 +93,13 @@ class PairOptions:
     """The ``cade disparity`` options a batch applies to a pair.
 
     ``min_disp``/``max_disp`` are ints or ``"auto"``; ``max_disp`` None means the
-    default (a quarter of the width). ``vis``, ``validity``, ``confidence`` ask for those
-    outputs beside the disparity (:data:`SIDE_OUTPUTS`).
+    default (a quarter of the width). ``memory_limit``: the budget of a worker, bytes, as
+    ``cade disparity --memory-limit`` (a pair that does not fit it is matched as tiles);
+    None: the default, half the memory available when the pair runs. ``rig``: the path of
+    a rig file; each pair is then matched as ``cade disparity LEFT RIGHT --rig`` does,
+    with ``camera``, ``frame``, ``fix_vertical`` (:data:`RIG_ONLY`). ``vis``,
+    ``validity``, ``confidence``, ``depth``, ``points`` ask for those outputs beside the
+    disparity (:data:`SIDE_OUTPUTS`).
     """
 
     method: str = DEFAULT_METHOD
@@ -96,12 +110,20 @@ class PairOptions:
     fill: str = "row"
     left_band: int | None = None
     right_band: int | None = None
+    memory_limit: int | None = None
+    rig: str | None = None
+    camera: str | None = None
+    frame: str = "rectified"
+    fix_vertical: bool = False
     vis: bool = False
     validity: bool = False
     confidence: bool = False
+    depth: bool = False
+    points: bool = False
 
     def check(self) -> None:
-        """Refuse unknown names and impossible combinations before any pair runs."""
+        """Refuse unknown names and impossible combinations before any pair runs (a rig
+        file is read here: a bad one, or an unknown ``camera``, is refused now)."""
         from cade_cli.matching import get_matcher
 
         matcher = get_matcher(self.method, model=self.model)
@@ -110,6 +132,28 @@ class PairOptions:
             raise CadeError(f"unknown --fill {self.fill!r}; choose row or none")
         if isinstance(self.min_disp, int) and isinstance(self.max_disp, int) and self.max_disp < self.min_disp:
             raise CadeError(f"--max-disp {self.max_disp} is below --min-disp {self.min_disp}; raise --max-disp")
+        if self.rig is None:
+            given = [name for name in RIG_ONLY if getattr(self, name) != getattr(PairOptions, name)]
+            if given:
+                option = "--" + given[0].replace("_", "-")
+                raise CadeError(f"{option} needs --rig (the rig file that says how to rectify the pairs); add --rig "
+                                f"RIG.json or drop {option}")
+            return
+        from cade_cli.rectification import FRAMES
+        from cade_cli.rig import load_rig
+        from cade_cli.rig_pair import rig_pair_rectification
+
+        if self.frame not in FRAMES:
+            raise CadeError(f"unknown --frame {self.frame!r}; choose rectified or original")
+        if self.memory_limit is not None:
+            raise CadeError("--memory-limit does not work with --rig yet; drop it (the rectified pair is matched whole)")
+        self.check_rig_range()
+        rig_pair_rectification(load_rig(self.rig), self.camera)
+
+    def check_rig_range(self) -> None:
+        """With a rig, refuse an ``auto`` bound (as ``cade disparity --rig`` does)."""
+        if self.rig is not None and AUTO in (self.min_disp, self.max_disp):
+            raise CadeError("--min-disp/--max-disp auto do not work with --rig yet; give the range in rectified px")
 
     def fingerprint(self) -> dict:
         """What decides a pair's outputs, as stored in its record: these options and, for
@@ -118,6 +162,11 @@ class PairOptions:
         from cade_cli.model_card import DEFAULT_MODEL, read_card
 
         options = asdict(self)
+        if self.rig is None:  # without a rig its options are their defaults: left out
+            for name in ("rig", *RIG_ONLY):
+                del options[name]
+        else:  # the rig by its content, wherever its file lies
+            options["rig"] = file_sha256(Path(self.rig))
         if self.method in LEARNED_METHODS:
             card = read_card(self.model or DEFAULT_MODEL)
             options["model_sha256"] = sorted(variant.sha256 for variant in card.variants)
@@ -163,6 +212,7 @@ class PairResult:
         attempts: runs it took (0 when skipped).
         notes: notes for the user (e.g. a colour image converted to luminance).
         peak_rss_mb: the worker's peak resident memory so far (MiB), after this pair.
+        tiles: tiles the pair was matched as (:mod:`cade_cli.tiling`); 0: whole.
     """
 
     left: str
@@ -179,6 +229,7 @@ class PairResult:
     valid_share: float | None = None
     notes: tuple[str, ...] = ()
     peak_rss_mb: float | None = None
+    tiles: int | None = None
 
     @classmethod
     def failure(cls, pair: Pair, error: str, *, attempts: int, worker: str | None = None) -> "PairResult":
@@ -403,15 +454,16 @@ def peak_rss_mb() -> float:
 def run_pair(pair: Pair) -> PairResult:
     """Match one pair and write its outputs and record, all or nothing.
 
+    Without a rig the pair goes through :func:`cade_cli.tiling.estimate_disparity_tiled`
+    (whole when it fits the memory limit, else as tiles), as ``cade disparity`` does; with
+    one through :func:`cade_cli.rig_pair.match_rig_pair` and
+    :func:`~cade_cli.rig_pair.write_rig_outputs`, as ``cade disparity --rig`` does.
+
     Returns a ``done`` result, or a ``failed`` one for a :class:`CadeError` (bad input:
     unreadable image, a range that does not fit, ...). Any other exception propagates,
     so that the engine can retry the pair.
     """
-    from cade_cli.disparity_io import write_disparity, write_validity, write_visualization
     from cade_cli.imageio import read_band
-    from cade_cli.matching import densify
-    from cade_cli.range import resolve_range
-    from cade_cli.stereo import estimate_disparity
 
     started = time.perf_counter()
     options = pair.options
@@ -426,42 +478,111 @@ def run_pair(pair: Pair) -> PairResult:
                 notes.append(f"{note}; pick a band with --{option.replace('_', '-')} or the manifest's {option}")
             bands.append(image)
         left, right = bands
-        if left.shape != right.shape:
-            raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
-                            f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
-        searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
-        result = estimate_disparity(left, right, method=options.method, min_disp=searched.minimum,
-                                    max_disp=searched.maximum, preprocess=options.preprocess, model=options.model)
-        if options.confidence and result.confidence is None:
-            raise CadeError(f"method {options.method} gives no confidence; drop --confidence")
         wanted = pair.outputs()
+        match = _match_with_rig if options.rig is not None else _match
+        matched = match(pair, left, right, notes)
         for path in (*wanted.values(), pair.record):
             path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_outputs([*wanted.values(), pair.record]) as staged:  # the record is renamed last
-            disparity = densify(result.disparity, result.valid) if options.fill == "row" else result.disparity
-            write_disparity(staged[wanted["disparity"]], disparity)
-            if "vis" in wanted:
-                write_visualization(staged[wanted["vis"]], result.disparity)
-            if "validity" in wanted:
-                write_validity(staged[wanted["validity"]], result.valid)
-            if "confidence" in wanted:
-                write_disparity(staged[wanted["confidence"]], result.confidence)
+            matched.write({role: staged[path] for role, path in wanted.items()})
             hashes = {role: file_sha256(staged[path]) for role, path in wanted.items()}
             record.update(
-                range=[searched.minimum, searched.maximum],
+                range=list(matched.range),
                 outputs={role: {"file": path.name, "sha256": hashes[role]} for role, path in wanted.items()},
                 cade_version=__version__,
+                **matched.facts,
             )
             staged[pair.record].write_text(json.dumps(record, indent=1) + "\n")
     except CadeError as error:
         return PairResult.failure(pair, str(error).splitlines()[0], attempts=1, worker=worker_name())
-    estimated = (options.min_disp == AUTO, options.max_disp == AUTO)
     return PairResult(
-        str(pair.left), str(pair.right), str(pair.output), "done", range=(searched.minimum, searched.maximum),
-        range_note=None if estimate is None else estimate.describe(estimated=estimated), outputs=hashes,
-        seconds=time.perf_counter() - started, worker=worker_name(), valid_share=float(result.valid.mean()),
-        notes=tuple(notes), peak_rss_mb=peak_rss_mb(),
+        str(pair.left), str(pair.right), str(pair.output), "done", range=matched.range, range_note=matched.range_note,
+        outputs=hashes, seconds=time.perf_counter() - started, worker=worker_name(), valid_share=matched.valid_share,
+        notes=tuple(notes), peak_rss_mb=peak_rss_mb(), tiles=matched.facts.get("tiles"),
     )
+
+
+@dataclass(frozen=True)
+class _Matched:
+    """A pair matched, before its outputs are written: ``write`` writes them (role -> file)."""
+
+    range: tuple[int, int]
+    range_note: str | None
+    valid_share: float
+    write: Callable[[dict[str, Path]], None]
+    facts: dict = field(default_factory=dict)
+    """Added to the pair's record (how it was matched: tiles, the rig's self-check)."""
+
+
+def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
+    """The pair as ``cade disparity`` matches it: its range resolved, matched whole or as
+    tiles within the memory limit (:func:`cade_cli.tiling.estimate_disparity_tiled`)."""
+    from cade_cli.disparity_io import write_match_outputs
+    from cade_cli.matching import densify
+    from cade_cli.range import resolve_range
+    from cade_cli.tiling import estimate_disparity_tiled
+
+    options = pair.options
+    if left.shape != right.shape:
+        raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
+                        f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
+    searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
+    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+    result, plan = estimate_disparity_tiled(left, right, method=options.method, min_disp=searched.minimum,
+                                            max_disp=searched.maximum, preprocess=options.preprocess,
+                                            model=options.model, memory_limit=budget)
+    if plan.tiled:
+        notes.append(f"a pair that does not fit --memory-limit {budget / 2**30:.1f} GB whole is matched as tiles "
+                     "(docs/scale.md, \"Tiling\"); the log gives each pair's tile count")
+    if options.confidence and result.confidence is None:
+        raise CadeError(f"method {options.method} gives no confidence; drop --confidence")
+
+    def write(files: dict[str, Path]) -> None:
+        write_match_outputs(files, dense=densify(result.disparity, result.valid), disparity=result.disparity,
+                            valid=result.valid, confidence=result.confidence, fill=options.fill)
+
+    estimated = (options.min_disp == AUTO, options.max_disp == AUTO)
+    return _Matched((searched.minimum, searched.maximum),
+                    None if estimate is None else estimate.describe(estimated=estimated),
+                    float(result.valid.mean()), write, {"tiles": len(plan.tiles)})
+
+
+def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
+    """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rig_pair`);
+    a rectification self-check above tolerance, or skipped, is a note."""
+    from cade_cli.rectification import VERTICAL_TOLERANCE_PX
+    from cade_cli.rig import load_rig
+    from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
+    from cade_cli.stereo import default_max_disparity
+
+    options = pair.options
+    options.check_rig_range()  # a manifest's range too
+    rig = load_rig(options.rig)
+    other, rectification = rig_pair_rectification(rig, options.camera)
+    check_rig_pair(rig, rectification, left, right, paths=(pair.left, pair.right))
+    width = rectification.image_size[0]
+    searched = (int(options.min_disp),
+                default_max_disparity(width) if options.max_disp is None else int(options.max_disp))
+    found, framed = match_rig_pair(rig, left, right, other=other, frame=options.frame, fill=options.fill,
+                                   fix_vertical=options.fix_vertical, method=options.method, min_disp=searched[0],
+                                   max_disp=searched[1], preprocess=options.preprocess, model=options.model)
+    check = found.misalignment
+    if check is None:
+        notes.append(f"{pair.left}: rectification self-check skipped: {found.self_check_problem}")
+        self_check = None
+    else:
+        worst = check.worst(width)
+        if worst > VERTICAL_TOLERANCE_PX and not options.fix_vertical:
+            notes.append(f"{pair.left}: rectification self-check: vertical misalignment up to {worst:.2f} px, above "
+                         f"{VERTICAL_TOLERANCE_PX} px; add --fix-vertical or recalibrate")
+        self_check = {"offset_px": check.offset, "roll_rad": check.roll, "worst_px": worst, "matches": check.matches,
+                      "corrected": found.corrected}
+
+    def write(files: dict[str, Path]) -> None:
+        write_rig_outputs(files, framed, fill=options.fill, method=options.method)
+
+    return _Matched(searched, None, float(framed.valid.mean()), write,
+                    {"rectification": list(rectification.cameras), "self_check": self_check})
 
 
 # --- memory ----------------------------------------------------------------------------------------------------------
@@ -473,6 +594,45 @@ def pair_memory_bytes(method: str, width: int, height: int, disparities: int) ->
     arrays, and the matcher's cost volume (:attr:`~cade_cli.matching.Matcher.volume_bytes`
     per pixel and disparity; 0 for the learned methods, whose strips bound it)."""
     return int(WORKER_BASE_BYTES + matching_memory_bytes(method, width, height, disparities))
+
+
+def planned_pair_memory(pair: Pair) -> tuple[int, int, int]:
+    """(width, height, bytes): the size a pair is matched at and its :func:`pair_memory_bytes`.
+
+    The size is read from the left file's header (:func:`image_size`), or with a rig is the
+    rectified size; the range is the pair's, an ``auto`` bound counted as a quarter of the
+    width (the default bound) on that side of zero.
+    """
+    from cade_cli.stereo import default_max_disparity
+
+    options = pair.options
+    if options.rig is not None:
+        width, height = _rectified_size(options.rig, options.camera)
+    else:
+        width, height = image_size(pair.left)
+    top = options.max_disp if isinstance(options.max_disp, int) else default_max_disparity(width)
+    bottom = options.min_disp if isinstance(options.min_disp, int) else -default_max_disparity(width)
+    return width, height, pair_memory_bytes(options.method, width, height, top - bottom + 1)
+
+
+@functools.lru_cache(maxsize=4)
+def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
+    from cade_cli.rig import load_rig
+    from cade_cli.rig_pair import rig_pair_rectification
+
+    return tuple(rig_pair_rectification(load_rig(rig), camera)[1].image_size)
+
+
+def job_memory_bytes(pairs: Sequence[Pair]) -> tuple[int, int, int]:
+    """(width, height, bytes) of the largest of ``pairs`` (:func:`planned_pair_memory`), the
+    bytes lowered to a worker's memory limit when that is smaller (a worker matches a pair
+    that does not fit its limit as tiles; a rig's pair is matched whole)."""
+    width, height, largest = max((planned_pair_memory(pair) for pair in pairs), key=lambda plan: plan[2])
+    options = pairs[0].options  # the limit and the rig are the batch's, not a manifest row's
+    if options.rig is None:
+        budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+        largest = min(largest, budget)
+    return width, height, largest
 
 
 def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) -> int:

@@ -17,12 +17,12 @@ import typer
 
 from cade_cli import __version__
 
-METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade", "cade-network")
+METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade", "cade-network", "dasc-sgm")
 """Registered matchers, listed here so that --help needs no heavy import (a test keeps
 this in step with :data:`cade_cli.matching.MATCHERS`)."""
-BENCHMARK_METHODS = METHOD_NAMES[:4]
-"""What ``cade benchmark`` compares by default: the four matchers (cade-network is cade's
-first stage, there to analyse the network; name it with --methods)."""
+BENCHMARK_METHODS = METHOD_NAMES[:4] + ("dasc-sgm",)
+"""What ``cade benchmark`` compares by default: the matchers of the paper's Table 1 that we
+have (cade-network is cade's first stage, there to analyse the network; name it with --methods)."""
 DEFAULT_METHOD = "cade"
 """The default matcher, here so that --help needs no heavy import (a test keeps it equal
 to :data:`cade_cli.stereo.DEFAULT_METHOD`)."""
@@ -153,13 +153,7 @@ def disparity(
                                                "roll the rectification self-check measures before matching.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
-    from cade_cli.disparity_io import (
-        DISPARITY_SUFFIXES,
-        VALIDITY_SUFFIXES,
-        write_disparity,
-        write_validity,
-        write_visualization,
-    )
+    from cade_cli.disparity_io import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, write_match_outputs
     from cade_cli.atomic import atomic_outputs
     from cade_cli.errors import CadeError
     from cade_cli.matching import densify, get_matcher
@@ -218,13 +212,9 @@ def disparity(
     if confidence is not None and result.confidence is None:
         raise CadeError(f"method {method} gives no confidence; drop --confidence")
     with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
-        write_disparity(staged[output], dense if fill == "row" else result.disparity)
-        if vis is not None:
-            write_visualization(staged[vis], result.disparity)
-        if validity is not None:
-            write_validity(staged[validity], result.valid)
-        if confidence is not None:  # a float32 TIFF, by the disparity writer (no NaN: 0 where rejected)
-            write_disparity(staged[confidence], result.confidence)
+        roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
+        write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
+                            disparity=result.disparity, valid=result.valid, confidence=result.confidence, fill=fill)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
@@ -240,11 +230,11 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     import numpy as np
 
     from cade_cli.atomic import atomic_outputs
-    from cade_cli.disparity_io import write_disparity, write_validity, write_visualization
     from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
-    from cade_cli.rectification import FRAMES, check_image_size, in_frame, rectification_of, rig_disparity, write_ply
+    from cade_cli.rectification import FRAMES
     from cade_cli.rig import load_rig
+    from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
 
     if frame not in FRAMES:
         raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
@@ -254,37 +244,26 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
             _check_output(path, suffixes=suffixes, inputs=inputs)
     get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before any work
     rig = load_rig(rig_file)
-    other = camera if camera is not None or rig.rectification is None else rig.rectification.cameras[1]
-    rectification = rectification_of(rig, other)
+    other, rectification = rig_pair_rectification(rig, camera)
     left_image, right_image = _read_pair(left, right, left_band, right_band)
-    for name, image, path in zip(rectification.cameras, (left_image, right_image), (left, right)):
-        check_image_size(rig, name, image, path=path)
+    check_rig_pair(rig, rectification, left_image, right_image, paths=(left, right))
     started = time.perf_counter()
     width = rectification.image_size[0]
     max_disp = _resolve_max_disp(max_disp, width)
-    found = rig_disparity(rig, left_image, right_image, other=other, fix_vertical=fix_vertical, method=method,
-                          max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model)
+    found, framed = match_rig_pair(rig, left_image, right_image, other=other, frame=frame, fill=fill,
+                                   fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp,
+                                   preprocess=preprocess, model=model)
     seconds = time.perf_counter() - started
     if found.misalignment is not None:
         _report_misalignment(found.misalignment, width, fixed=fix_vertical, corrected=found.corrected)
     else:
         _warn(f"rectification self-check skipped: {found.self_check_problem}")
     _warn_if_textureless(left, right, found.left, found.right)
-    framed = in_frame(found, rig, frame=frame, fill=fill == "row")
-    if confidence is not None and framed.confidence is None:
-        raise CadeError(f"method {method} gives no confidence; drop --confidence")
-    with atomic_outputs([output, vis, validity, confidence, depth, points]) as staged:
-        write_disparity(staged[output], framed.dense if fill == "row" else framed.disparity)
-        if vis is not None:
-            write_visualization(staged[vis], framed.disparity)
-        if validity is not None:
-            write_validity(staged[validity], framed.valid)
-        if confidence is not None:
-            write_disparity(staged[confidence], framed.confidence)
-        if depth is not None:
-            write_disparity(staged[depth], framed.depth)  # float32 TIFF, NaN where unknown
-        if points is not None:
-            written = write_ply(staged[points], framed.points, framed.colours)
+    files = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence, "depth": depth,
+             "points": points}
+    with atomic_outputs(list(files.values())) as staged:  # all outputs appear together, or none
+        written = write_rig_outputs({role: None if path is None else staged[path] for role, path in files.items()},
+                                    framed, fill=fill, method=method)
     height, width = framed.dense.shape
     known = framed.dense[framed.valid] if framed.valid.any() else framed.dense[:1] * 0
     print(f"{output}: {width}x{height} ({frame} frame of {rectification.cameras[0]}; rectified "
@@ -539,7 +518,10 @@ def benchmark(
     json_file: Annotated[Optional[Path], typer.Option("--json", help="Write every number as JSON.")] = None,
     report: Annotated[Optional[Path], typer.Option("--report", help="Write a Markdown report.")] = None,
     save_dir: Annotated[Optional[Path], typer.Option("--save-dir", help="Write each disparity (PFM) and error map (PNG) here.")] = None,
-    model: ModelOption = None,
+    model: Annotated[Optional[str], typer.Option("--model", help="Network(s) of the learned methods, as for `cade "
+                                                 "disparity --model`; several, comma-separated, score each learned "
+                                                 "method once per model in the same run (rows METHOD:MODEL, e.g. "
+                                                 "cade:cade-v4, cade:runs/x.json -> cade:x).")] = None,
 ) -> None:
     """Score matchers on a dataset with the paper's protocols (CS, RGB) and print a Table-1-style summary."""
     import shlex
@@ -575,9 +557,22 @@ def benchmark(
             learned = [name for name in split(methods) if name in LEARNED_METHODS]
             if model is not None and not learned:
                 raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
-            matchers = {**MATCHERS, **{name: get_matcher(name, model=model) for name in learned}}
+            models = split(model) if model is not None else []
+            if model is not None and not models:
+                raise CadeError(f"--model {model!r} names nothing; give a model, or leave it out for the shipped one")
+            chosen, matchers = split(methods), dict(MATCHERS)
+            if len(models) == 1:
+                matchers.update({name: get_matcher(name, model=models[0]) for name in learned})
+            elif models:  # one row per learned method and model: METHOD:MODEL
+                labels = [Path(name).stem if name.endswith(".json") else name for name in models]
+                if len(set(labels)) != len(labels):
+                    raise CadeError(f"--model names two models called the same ({', '.join(labels)}); rename a card")
+                chosen = [f"{name}:{label}" if name in learned else name
+                          for name in chosen for label in (labels if name in learned else [None])]
+                matchers.update({f"{name}:{label}": get_matcher(name, model=path)
+                                 for name in learned for label, path in zip(labels, models)})
             run = run_benchmark(
-                dataset=dataset, data_dir=data_dir, methods=split(methods), protocols=split(protocol),
+                dataset=dataset, data_dir=data_dir, methods=chosen, protocols=split(protocol),
                 preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
                 save_dir=None if save_dir is None else staged[save_dir], on_scene_done=advance, matchers=matchers,
                 on_start=lambda total: progress.update(bar, total=total),
@@ -835,6 +830,30 @@ def batch(
     validity: Annotated[bool, typer.Option("--validity", help="Also write <name>_validity.png (255 = valid).")] = False,
     confidence: Annotated[bool, typer.Option("--confidence", help="Also write <name>_confidence.tif (float32, "
                                              "[0, 1]).")] = False,
+    memory_limit: Annotated[
+        Optional[str], typer.Option("--memory-limit", help="Memory budget of each job, like 4GB or 512MB (default: "
+                                    "half the memory available): a pair that does not fit it whole is matched as "
+                                    "tiles, as by `cade disparity --memory-limit`; --jobs is lowered so that the "
+                                    "jobs fit.", show_default=False)
+    ] = None,
+    rig_file: Annotated[
+        Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): each LEFT is its reference camera's "
+                                     "image, each RIGHT another camera's; every pair is rectified first, as by "
+                                     "`cade disparity --rig` (docs/rigs.md).")
+    ] = None,
+    camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took the RIGHT images "
+                                                  "(default: the rig's rectified pair, else the first other "
+                                                  "camera).")] = None,
+    frame: Annotated[
+        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
+                          "the 'original' one (disparity stays in rectified px).")
+    ] = "rectified",
+    depth: Annotated[bool, typer.Option("--depth", help="With --rig: also write <name>_depth.tif (float32, metres, "
+                                        "NaN unknown).")] = False,
+    points: Annotated[bool, typer.Option("--points", help="With --rig: also write <name>_points.ply (binary PLY, "
+                                         "metres, reference camera frame).")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
+                                               "roll the rectification self-check measures before matching.")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes on this machine, each loading "
                                       "the model once; lowered if their memory would not fit.")] = 1,
     threads: Annotated[Optional[int], typer.Option("--threads", min=1, help="Threads of each worker (default: the "
@@ -861,12 +880,10 @@ def batch(
 
     from cade_cli.atomic import atomic_output
     from cade_cli.batch import (
-        BatchSummary, PairOptions, available_memory_bytes, cap_jobs, image_size, is_finished, log_document,
-        pair_memory_bytes, pairs_from_manifest, pairs_from_patterns, remove_stale_temporaries, run_dask, run_local,
-        skipped_result,
+        BatchSummary, PairOptions, available_memory_bytes, cap_jobs, is_finished, job_memory_bytes, log_document,
+        pairs_from_manifest, pairs_from_patterns, remove_stale_temporaries, run_dask, run_local, skipped_result,
     )
     from cade_cli.errors import CadeError
-    from cade_cli.stereo import default_max_disparity
 
     by_pattern = (left, right, output_dir)
     if manifest is not None and any(value is not None for value in by_pattern):
@@ -882,8 +899,11 @@ def batch(
         raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
     min_disp, max_disp = _parse_range_options(min_disp, max_disp)
     options = PairOptions(method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, model=model,
-                          fill=fill, left_band=left_band, right_band=right_band, vis=vis, validity=validity,
-                          confidence=confidence)
+                          fill=fill, left_band=left_band, right_band=right_band,
+                          memory_limit=None if memory_limit is None else _parse_memory_limit(memory_limit),
+                          rig=None if rig_file is None else str(rig_file.absolute()), camera=camera, frame=frame,
+                          fix_vertical=fix_vertical, vis=vis, validity=validity, confidence=confidence, depth=depth,
+                          points=points)
     options.check()
     if manifest is not None:
         pairs = pairs_from_manifest(manifest, options=options)
@@ -901,14 +921,12 @@ def batch(
     todo = [pair for pair in pairs if str(pair.output) not in finished]
     engine_name = f"dask {scheduler or scheduler_file}" if cluster else f"{jobs} local job(s)"
     if todo and not cluster and jobs > 1:
-        width, height = image_size(todo[0].left)
-        top = max_disp if isinstance(max_disp, int) else default_max_disparity(width)
-        bottom = min_disp if isinstance(min_disp, int) else -default_max_disparity(width)
-        per_job = pair_memory_bytes(method, width, height, top - bottom + 1)
+        width, height, per_job = job_memory_bytes(todo)  # the largest pair, or the memory limit
         allowed = cap_jobs(jobs, per_job)
         if allowed < jobs:
-            _note(f"--jobs {jobs} lowered to {allowed}: a {width}x{height} pair may take {per_job / 2**30:.1f} GB per "
-                  f"job and {available_memory_bytes() / 2**30:.1f} GB are available")
+            _note(f"--jobs {jobs} lowered to {allowed}: the largest pair, {width}x{height}, may take "
+                  f"{per_job / 2**30:.1f} GB per job (within its memory limit) and "
+                  f"{available_memory_bytes() / 2**30:.1f} GB are available")
             jobs, engine_name = allowed, f"{allowed} local job(s)"
     if threads is None and not cluster and jobs > 1:
         threads = max(1, (os.cpu_count() or 1) // jobs)
@@ -918,6 +936,7 @@ def batch(
     config = {"command": ["cade", *sys.argv[1:]] if sys.argv[1:2] == ["batch"] else None, "engine": engine_name,
               "manifest": None if manifest is None else str(manifest), "left": left, "right": right,
               "output_dir": None if output_dir is None else str(output_dir), "force": force,
+              "rig": None if rig_file is None else str(rig_file),
               "options": {key: value for key, value in options.fingerprint().items()}}
 
     class PairRate(ProgressColumn):

@@ -399,3 +399,18 @@ def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
     """Run ``write(temporary)`` inside :func:`atomic_output` (which turns OS errors into CadeError)."""
     with atomic_output(path) as temporary:
         write(temporary)
+
+
+def write_match_outputs(files: dict[str, Path], *, dense: np.ndarray, disparity: np.ndarray, valid: np.ndarray,
+                        confidence: np.ndarray | None, fill: str = "row") -> None:
+    """Write a match's outputs, each to ``files[role]`` when the role is there: ``disparity``
+    (``dense`` for ``fill="row"``, else the unfilled ``disparity``, NaN where rejected),
+    ``vis`` (of the unfilled map: rejected pixels black), ``validity`` and ``confidence``
+    (float32 TIFF). ``cade disparity``, ``--rig`` and ``cade batch`` all write through here."""
+    write_disparity(files["disparity"], dense if fill == "row" else disparity)
+    if "vis" in files:
+        write_visualization(files["vis"], disparity)
+    if "validity" in files:
+        write_validity(files["validity"], valid)
+    if "confidence" in files:  # no NaN: 0 where rejected
+        write_disparity(files["confidence"], confidence)

@@ -67,6 +67,10 @@ class ModelCard:
     """The learned choice between the network and the refinement's match
     (:class:`cade_cli.matching.chooser.Chooser`'s weights), when the card has one; without
     it the refinement's fixed agreement rule decides."""
+    input: str = "cade"
+    """How each band is given to the network (:data:`cade_cli.spectral.NETWORK_INPUTS`): its
+    color agnostic transform (every shipped model, and cards without the field), or rescaled
+    to [0, 1] (the training ablation's pristine and CSDL models)."""
 
 
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
@@ -108,7 +112,12 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         chooser = card.get("chooser")
         if chooser is not None and not isinstance(chooser, dict):
             raise ValueError("chooser is not an object")
-        return ModelCard(name, variants, int(card["divisor"]), chooser)
+        from cade_cli.spectral import NETWORK_INPUTS
+
+        network_input = card.get("input", "cade")
+        if network_input not in NETWORK_INPUTS:
+            raise ValueError(f"input {network_input!r} is not one of {', '.join(NETWORK_INPUTS)}")
+        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

@@ -133,3 +133,31 @@ def synthesize_bands(rgb: np.ndarray, rng: np.random.Generator) -> dict[str, np.
     }
     # float32 weighted means of saturated pixels can round to 1 + 1 ulp: keep [0, 1].
     return {name: np.clip(bands[name], 0.0, 1.0).astype(np.float32, copy=False) for name in BAND_NAMES}
+
+
+NETWORK_INPUTS: tuple[str, ...] = ("cade", "normalised")
+"""What a network's card says its inputs are: the color agnostic transform of each band
+(every shipped model), or each band rescaled to [0, 1] by its own minimum and maximum (the
+pristine and CSDL training modes of the training ablation, which see no transform)."""
+
+
+def normalised(image: np.ndarray) -> np.ndarray:
+    """``image`` (H, W) rescaled to [0, 1] by its own minimum and maximum (float32; zeros
+    where the image is constant). Invariant to ``a * image + b`` with ``a > 0`` globally,
+    but unlike :func:`color_agnostic` not to a local or non-linear intensity change."""
+    x = np.asarray(image, dtype=np.float64)
+    if x.ndim != 2:
+        raise CadeError(f"normalised expects one band of shape (H, W), got shape {x.shape}; pick a band first")
+    low, high = float(x.min()), float(x.max())
+    if high == low:
+        return np.zeros(x.shape, np.float32)
+    return ((x - low) / (high - low)).astype(np.float32)
+
+
+def network_input(image: np.ndarray, kind: str = "cade") -> np.ndarray:
+    """One band as a network of input ``kind`` (:data:`NETWORK_INPUTS`) takes it."""
+    if kind == "cade":
+        return color_agnostic(image)
+    if kind == "normalised":
+        return normalised(image)
+    raise CadeError(f"unknown network input {kind!r}; choose one of {', '.join(NETWORK_INPUTS)}")

@@ -21,16 +21,23 @@ FAST = ["--method", "census-sgm", "--max-disp", "16"]
 """A quick classical matcher over a small range: these tests are about the batch, not the matching."""
 
 
+def cross_band_pairs(folder: Path, rng, sides: tuple[str, str], *, count: int, shape: tuple[int, int],
+                     background: float) -> Path:
+    """``<side>/000N.png`` for N < count: rendered pairs (background disparity ``background + N``,
+    a foreground at 10 px), the right band a non-linear change of the left's."""
+    for side in sides:
+        (folder / side).mkdir()
+    for index in range(count):
+        pair = render_pair(rng, shape, background=(background + index, 0.0), foreground=(10.0, 0.0))
+        write_png16(folder / sides[0] / f"{index:04d}.png", pair.left)
+        write_png16(folder / sides[1] / f"{index:04d}.png", 0.1 + 0.6 * pair.right**2)
+    return folder
+
+
 @pytest.fixture
 def cameras(tmp_path, rng) -> Path:
     """cam0/000N.png and cam1/000N.png: three cross-band pairs of known disparity."""
-    for side in ("cam0", "cam1"):
-        (tmp_path / side).mkdir()
-    for index in range(3):
-        pair = render_pair(rng, (48, 96), background=(4.0 + index, 0.0), foreground=(10.0, 0.0))
-        write_png16(tmp_path / "cam0" / f"{index:04d}.png", pair.left)
-        write_png16(tmp_path / "cam1" / f"{index:04d}.png", 0.1 + 0.6 * pair.right**2)
-    return tmp_path
+    return cross_band_pairs(tmp_path, rng, ("cam0", "cam1"), count=3, shape=(48, 96), background=4.0)
 
 
 def batch_args(root: Path, out: str, *extra) -> list:
@@ -263,3 +270,161 @@ def test_two_files_of_one_name_on_a_side_are_refused(tmp_path):
     with pytest.raises(CadeError, match="two files named 1.png"):
         pairs_from_patterns(str(tmp_path / "a/**/*.png"), str(tmp_path / "b/*.png"), tmp_path / "out",
                             options=PairOptions())
+
+
+# --- the memory limit (tiling) and the rig options: what `cade disparity` does, pair by pair -----------------------
+
+
+def memory_limit_that_tiles() -> str:
+    """A --memory-limit a 96x192 pair over 17 disparities does not fit whole (census-sgm:
+    about 10 MB beyond the process's base), matched as a handful of tiles instead."""
+    from cade_cli.tiling import BASE_BYTES
+
+    return f"{(BASE_BYTES + 6000 * 2**10) // 2**10}KB"
+
+
+@pytest.fixture
+def wide(tmp_path, rng) -> Path:
+    """l/000N.png and r/000N.png: two 96x192 cross-band pairs."""
+    return cross_band_pairs(tmp_path, rng, ("l", "r"), count=2, shape=(96, 192), background=6.0)
+
+
+def test_memory_limit_tiles_each_pair_as_disparity_does_and_a_new_limit_redoes_them(wide, capsys):
+    limit = memory_limit_that_tiles()
+    side = ["--vis", "--validity", "--confidence"]
+    args = ["batch", "--left", wide / "l" / "*.png", "--right", wide / "r" / "*.png", "-o", wide / "out", *FAST]
+    code, stdout, stderr = run_cade([*args, "--memory-limit", limit, *side], capsys)
+    assert code == 0 and "2 done" in stdout, stderr
+    assert "matched as tiles" in stderr
+    log = log_of(wide / "out")
+    assert all(entry["tiles"] > 1 for entry in log["pairs"]), log["pairs"]
+    for index in range(2):
+        name = f"{index:04d}"
+        single = wide / "single"
+        single.mkdir(exist_ok=True)
+        code, _, stderr = run_cade(["disparity", wide / "l" / f"{name}.png", wide / "r" / f"{name}.png", "-o",
+                                    single / f"{name}.pfm", *FAST, "--memory-limit", limit, "--vis",
+                                    single / f"{name}_vis.png", "--validity", single / f"{name}_validity.png",
+                                    "--confidence", single / f"{name}_confidence.tif"], capsys)
+        assert code == 0 and " tiles of " in stderr, stderr
+        for suffix in (".pfm", "_vis.png", "_validity.png", "_confidence.tif"):
+            assert (wide / "out" / f"{name}{suffix}").read_bytes() == (single / f"{name}{suffix}").read_bytes(), suffix
+    code, stdout, _ = run_cade([*args, "--memory-limit", limit, *side], capsys)
+    assert code == 0 and "0 done, 2 already finished" in stdout
+    # another limit may tile otherwise: the finished pairs are not trusted, and matched whole now
+    code, stdout, _ = run_cade([*args, "--memory-limit", "4GB", *side], capsys)
+    assert code == 0 and "2 done, 0 already finished" in stdout
+    assert [entry["tiles"] for entry in log_of(wide / "out")["pairs"]] == [0, 0]
+    record = json.loads((wide / "out" / "0000.pfm.cade.json").read_text())
+    assert record["options"]["memory_limit"] == 4 * 2**30 and record["tiles"] == 0
+
+
+def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp_path):
+    from cade_cli.batch import job_memory_bytes
+    from cade_cli.tiling import BASE_BYTES
+
+    for name, shape in (("small", (16, 32)), ("large", (64, 128))):
+        write_png16(tmp_path / f"{name}.png", np.zeros(shape))
+    options = PairOptions(method="census-sgm", max_disp=16)
+    pairs = [Pair(tmp_path / f"{name}.png", tmp_path / f"{name}.png", tmp_path / f"{name}.pfm", options)
+             for name in ("small", "large")]  # the largest is not the first
+    assert job_memory_bytes(pairs) == (128, 64, pair_memory_bytes("census-sgm", 128, 64, 17))
+    limit = BASE_BYTES + 2**20  # below the large pair's plan: its worker tiles it within the limit
+    limited = [Pair(p.left, p.right, p.output, PairOptions(method="census-sgm", max_disp=16, memory_limit=limit))
+               for p in pairs]
+    assert job_memory_bytes(limited) == (128, 64, limit)
+    wide_range = [pairs[0], Pair(pairs[1].left, pairs[1].right, pairs[1].output,
+                                 PairOptions(method="census-sgm", min_disp="auto", max_disp=16))]
+    assert job_memory_bytes(wide_range)[2] == pair_memory_bytes("census-sgm", 128, 64, 16 + 32 + 1)  # auto: -w/4
+
+
+def test_jobs_are_lowered_to_what_the_largest_pair_leaves_room_for(cameras, capsys, monkeypatch):
+    from cade_cli import batch
+
+    planned = pair_memory_bytes("census-sgm", 96, 48, 17)
+    monkeypatch.setattr(batch, "available_memory_bytes", lambda: int(1.5 * planned / batch.MEMORY_HEADROOM))
+    code, stdout, stderr = run_cade(batch_args(cameras, "out", "--jobs", 3), capsys)
+    assert code == 0 and "1 local job(s)" in stdout
+    assert "--jobs 3 lowered to 1: the largest pair, 96x48" in stderr
+
+
+@pytest.fixture
+def rig_cameras(tmp_path, rng) -> Path:
+    """rig.json (the synthetic rig of test_rig) and cam0/000N.png, cam1/000N.png: two
+    views of a textured plane, at 1.2 and 1.5 m."""
+    import cv2
+
+    from cade_cli.rig import save_rig
+    from test_rig import scene_pair, synthetic_rig
+
+    save_rig(synthetic_rig(), tmp_path / "rig.json")
+    for side in ("cam0", "cam1"):
+        (tmp_path / side).mkdir()
+    for index, depth in enumerate((1.2, 1.5)):
+        for side, image in zip(("cam0", "cam1"), scene_pair(depth, rng, invert_right=False)):
+            cv2.imwrite(str(tmp_path / side / f"{index:04d}.png"), np.round(image * 255).astype(np.uint8))
+    return tmp_path
+
+
+def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras, capsys):
+    from cade_cli.rig import Rig, load_rig, save_rig
+
+    root = rig_cameras
+    rig_options = ["--rig", root / "rig.json", "--frame", "original", "-m", "sgbm", "--max-disp", 48]
+    args = ["batch", "--left", root / "cam0" / "*.png", "--right", root / "cam1" / "*.png", "-o", root / "out",
+            *rig_options, "--depth", "--points", "--validity"]
+    code, stdout, stderr = run_cade(args, capsys)
+    assert code == 0 and "2 done" in stdout, stderr
+    suffixes = (".pfm", "_depth.tif", "_points.ply", "_validity.png")
+    assert sorted(p.name for p in (root / "out").iterdir() if not p.name.endswith(".json")) == sorted(
+        f"{index:04d}{suffix}" for index in range(2) for suffix in suffixes)
+    single = root / "single"
+    single.mkdir()
+    for index in range(2):
+        name = f"{index:04d}"
+        code, _, stderr = run_cade(["disparity", root / "cam0" / f"{name}.png", root / "cam1" / f"{name}.png", "-o",
+                                    single / f"{name}.pfm", *rig_options, "--depth", single / f"{name}_depth.tif",
+                                    "--points", single / f"{name}_points.ply", "--validity",
+                                    single / f"{name}_validity.png"], capsys)
+        assert code == 0, stderr
+        for suffix in suffixes:
+            assert (root / "out" / f"{name}{suffix}").read_bytes() == (single / f"{name}{suffix}").read_bytes(), suffix
+    record = json.loads((root / "out" / "0001.pfm.cade.json").read_text())
+    assert set(record["outputs"]) == {"disparity", "depth", "points", "validity"}
+    assert record["options"]["frame"] == "original" and record["rectification"] == ["left", "right"]
+    assert record["self_check"]["worst_px"] < 0.5 and record["range"] == [0, 48]
+    code, stdout, _ = run_cade(args, capsys)
+    assert code == 0 and "0 done, 2 already finished" in stdout
+    (root / "out" / "0000_points.ply").unlink()  # a missing side output: that pair is redone
+    code, stdout, _ = run_cade(args, capsys)
+    assert code == 0 and "1 done, 1 already finished" in stdout
+    # another rig file (here the same cameras, without the stored rectification): every pair is redone
+    rig = load_rig(root / "rig.json")
+    save_rig(Rig(rig.reference, rig.cameras), root / "rig.json")
+    code, stdout, _ = run_cade(args, capsys)
+    assert code == 0 and "2 done, 0 already finished" in stdout
+
+
+RIG_BATCH_ERRORS = {
+    "depth without a rig": (["--depth"], "--depth needs --rig"),
+    "fix-vertical without a rig": (["--fix-vertical"], "--fix-vertical needs --rig"),
+    "memory limit with a rig": (["--rig", "rig.json", "--memory-limit", "1GB"], "--memory-limit does not work with --rig"),
+    "auto with a rig": (["--rig", "rig.json", "--max-disp", "auto"], "auto do not work with --rig"),
+    "missing rig": (["--rig", "missing.json"], "does not exist"),
+    "unknown camera": (["--rig", "rig.json", "--camera", "nir"], "no camera 'nir'"),
+    "bad memory limit": (["--memory-limit", "lots"], "--memory-limit 'lots'"),
+}
+
+
+@pytest.mark.parametrize("case", RIG_BATCH_ERRORS)
+def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, monkeypatch, case):
+    from cade_cli.rig import save_rig
+    from test_rig import synthetic_rig
+
+    save_rig(synthetic_rig(), cameras / "rig.json")
+    monkeypatch.chdir(cameras)
+    args, message = RIG_BATCH_ERRORS[case]
+    code, _, stderr = run_cade(["batch", "--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", *args], capsys)
+    assert code == 1 and len(stderr.strip().splitlines()) == 1, stderr
+    assert stderr.startswith("cade: error:") and message in stderr
+    assert not (cameras / "out").exists()

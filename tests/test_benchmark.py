@@ -226,3 +226,32 @@ def test_compare_records_reports_each_changed_score(folder_dataset, oracle, tmp_
     new.write_text(json.dumps(data))
     assert compare.main([str(old), str(new)]) == 1
     assert compare.main([str(old), str(new), "--new-metrics"]) == 0
+
+
+def test_several_models_score_in_one_run_as_method_colon_model(folder_dataset, tmp_path, capsys):
+    """--model a,b: each learned method runs once per model (rows METHOD:MODEL); a copy of
+    the shipped card under another name scores exactly as the shipped one."""
+    import shutil
+
+    from cade_cli.model_card import card_path, read_card
+
+    folder = tmp_path / "my-models"
+    folder.mkdir()
+    for variant in read_card("fast").variants:
+        shutil.copy(variant.path, folder)
+    shutil.copy(card_path("fast"), folder / "copy.json")
+    out_json = folder / "r.json"
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(folder_dataset), "--methods",
+                  "sgbm,cade-network", "--protocol", "rgb", "--preprocess", "cade", "--json", str(out_json),
+                  "--model", f"fast,{folder / 'copy.json'}"])
+    assert exit_info.value.code == 0
+    summary = {row["method"]: row for row in json.loads(out_json.read_text())["summary"]}
+    assert set(summary) == {"sgbm", "cade-network:fast", "cade-network:copy"}
+    shipped, copy = summary["cade-network:fast"], summary["cade-network:copy"]
+    assert {k: v for k, v in shipped.items() if k != "method" and "time" not in k and "s_per" not in k} == \
+        {k: v for k, v in copy.items() if k != "method" and "time" not in k and "s_per" not in k}
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(folder_dataset), "--methods", "cade-network",
+                  "--model", f"fast,{folder / 'fast.json'}"])
+    assert exit_info.value.code != 0

@@ -23,6 +23,7 @@ LAYERS: dict[str, int] = {
     # 2: the library's entry points
     "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.registration_io": 2,
     "cade_cli.rig": 2, "cade_cli.calibration": 2, "cade_cli.rectification": 2,
+    "cade_cli.rig_pair": 2,
     "cade_cli.array": 2, "cade_cli.range": 2, "cade_cli.tiling": 2,
     # 3: data sets, then the evaluation built on them
     "cade_cli.data": 3,

@@ -74,10 +74,13 @@ def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
     state = torch.load(checkpoint, weights_only=False)
     assert state["step"] == 4
     config.steps = 6
+    with (tmp_path / "run" / "log.csv").open("a") as log:  # as a run killed after an unsaved step 5 leaves it
+        log.write("5,0,1e-3,1.0,1.0,train,,\n")
     train(config)  # resumes at step 4
     rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
     validated = [int(row["step"]) for row in rows if row["set"] == "synthetic"]
     assert validated == [2, 4, 6]
+    assert [row["step"] for row in rows].count("5") == 0  # the unsaved step's row was dropped on resume
     assert torch.load(checkpoint, weights_only=False)["step"] == 6
 
     onnx_path = tmp_path / "tiny.onnx"

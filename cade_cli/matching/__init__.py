@@ -18,7 +18,7 @@ from cade_cli.matching.base import (
     DisparityResult,
     Matcher,
 )
-from cade_cli.matching.classical import OpenCvSgbm, census_sgm, zncc_sgm
+from cade_cli.matching.classical import OpenCvSgbm, census_sgm, dasc_sgm, zncc_sgm
 from cade_cli.matching.disparity import densify
 from cade_cli.matching.learned import LearnedPipeline
 from cade_cli.matching.network import NetworkStage
@@ -45,6 +45,12 @@ MATCHERS: dict[str, Matcher] = {
         # (benchmarks/cade_errors.py, the training ablation), not a better matcher.
         Matcher("cade-network", "the CADE network alone (cade without the full-resolution refinement)",
                 LearnedPipeline(refinement=None), 8, preprocessing=("cade",), volume_bytes=0),
+        # DASC (Kim et al., CVPR 2015) is built from each band's self-correlation, made
+        # for cross-spectral pairs; it holds two (H, W, 128) float32 descriptor maps on
+        # top of the cost volume (cade_cli.matching.dasc).
+        Matcher("dasc-sgm", "DASC descriptor (adaptive self-correlation, 128 patch pairs in 15x15) cost + 8-path SGM, "
+                "LR check (own implementation)",
+                dasc_sgm, 5, preprocessing=("none", "cade"), volume_bytes=36),
     )
 }
 

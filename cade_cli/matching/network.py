@@ -36,7 +36,7 @@ from cade_cli.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange
 from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
-from cade_cli.spectral import color_agnostic
+from cade_cli.spectral import network_input
 
 STRIP_PIXELS = 1_500_000
 """Largest padded strip (pixels) given to the network at once; bounds memory (the cost
@@ -187,7 +187,8 @@ class NetworkStage:
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> np.ndarray:
         """(H, W) float32 disparity in px, clipped to ``disparity_range``, of the raw bands
-        ``left`` against ``right`` (the network sees their CADE transforms)."""
+        ``left`` against ``right`` (the network sees their CADE transforms, or for a card
+        whose ``input`` is ``normalised`` the bands rescaled to [0, 1])."""
         return self.estimate(left, right, disparity_range).disparity
 
     def estimate(self, left: np.ndarray, right: np.ndarray, disparity_range: DisparityRange) -> NetworkOutput:
@@ -198,7 +199,7 @@ class NetworkStage:
         session = onnx_session(variant.path, variant.sha256)
         height, width = left.shape
         minimum = disparity_range.minimum
-        left_band, right_band = color_agnostic(left), color_agnostic(shift_right_view(right, minimum))
+        left_band, right_band = (network_input(band, card.input) for band in (left, shift_right_view(right, minimum)))
         if factor > 1:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))
             left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)

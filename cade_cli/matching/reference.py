@@ -93,3 +93,68 @@ def sgm_aggregate_reference(cost: np.ndarray, *, p1: float, p2: float) -> np.nda
                     path[y, x, d] = cost[y, x, d] + min(candidates) - smallest
         total += path
     return total
+
+
+def dasc_descriptor_reference(
+    image: np.ndarray, *, pattern: np.ndarray, patch_radius: int = 2, epsilon: float = 0.09, sigma: float = 0.5,
+    blur_sigma: float = 1.0,
+) -> np.ndarray:
+    """DASC descriptor (:func:`cade_cli.matching.dasc.dasc_descriptor`) pixel by pixel,
+    from the guided filter's explicit kernel (He et al., ECCV 2010, eq. 19):
+
+        W(c, j) = 1/n^2 sum over the n-pixel boxes w_k holding c and j of
+                  1 + (I_c - mean_k) (I_j - mean_k) / (var_k + epsilon).
+
+    For pair (p, q) the entry at x is the W(x + p, .)-weighted correlation of I around
+    x + p with I around x + q. The band is prepared as the fast version does
+    (:func:`~cade_cli.matching.dasc.dasc_prepare`). Entries at pixels whose boxes leave the
+    image (within max |offset| + 2 * patch_radius of a border) are NaN here (the fast
+    version replicates the border); compare interior pixels only.
+
+    Returns:
+        (H, W, K) float64.
+    """
+    from cade_cli.matching.dasc import FLAT_VARIANCE, dasc_prepare
+
+    band = dasc_prepare(image, blur_sigma=blur_sigma).astype(np.float64)
+    pattern = np.asarray(pattern).reshape(-1, 4)
+    height, width = band.shape
+    r = patch_radius
+    n = (2 * r + 1) ** 2
+    margin = int(np.abs(pattern).max()) + 2 * r
+    weights_at: dict[tuple[int, int], np.ndarray] = {}
+
+    def weights(cy: int, cx: int) -> np.ndarray:
+        """W(c, j) for j in the (4r + 1)^2 square around c."""
+        if (cy, cx) not in weights_at:
+            w = np.zeros((4 * r + 1, 4 * r + 1))
+            for ky in range(cy - r, cy + r + 1):  # box centres k whose box holds c
+                for kx in range(cx - r, cx + r + 1):
+                    box = band[ky - r:ky + r + 1, kx - r:kx + r + 1]
+                    mean, var = box.mean(), box.var()
+                    term = 1.0 + (band[cy, cx] - mean) * (box - mean) / (var + epsilon)
+                    oy, ox = ky - r - (cy - 2 * r), kx - r - (cx - 2 * r)
+                    w[oy:oy + 2 * r + 1, ox:ox + 2 * r + 1] += term / n**2
+            weights_at[(cy, cx)] = w
+        return weights_at[(cy, cx)]
+
+    descriptor = np.full((height, width, len(pattern)), np.nan)
+    for y in range(margin, height - margin):
+        for x in range(margin, width - margin):
+            entries = []
+            for py, px, qy, qx in pattern:
+                cy, cx, sy, sx = y + py, x + px, y + qy, x + qx
+                w = weights(cy, cx)
+                a = band[cy - 2 * r:cy + 2 * r + 1, cx - 2 * r:cx + 2 * r + 1]
+                b = band[sy - 2 * r:sy + 2 * r + 1, sx - 2 * r:sx + 2 * r + 1]
+                mean_a, mean_b = (w * a).sum(), (w * b).sum()
+                var_a, var_b = (w * a * a).sum() - mean_a**2, (w * b * b).sum() - mean_b**2
+                if var_a < FLAT_VARIANCE or var_b < FLAT_VARIANCE:
+                    correlation = 1.0
+                else:
+                    correlation = ((w * a * b).sum() - mean_a * mean_b) / np.sqrt(var_a * var_b)
+                    correlation = min(max(correlation, -1.0), 1.0)
+                entries.append(np.exp(-(1.0 - correlation) / sigma))
+            entries = np.array(entries)
+            descriptor[y, x] = entries / np.sqrt((entries**2).sum())
+    return descriptor

@@ -54,6 +54,10 @@ def fit(
     init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
                                                "(a wider 3D part starts fresh).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
+    training_mode: Annotated[str, typer.Option(help="cade (11 bands + the color agnostic transform; every shipped "
+                                               "model), csdl (the 4 weighted-sum bands + noise, no transform) or "
+                                               "pristine (the same R, G or B on both sides, no transform): the "
+                                               "training ablation, docs/results.md.")] = "cade",
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
 ) -> None:
@@ -61,6 +65,10 @@ def fit(
     if real_share > 0 and real_dir is None:
         raise typer.BadParameter("--real-share needs --real-dir", param_hint="--real-share")
     from cade_cli.train.fit import TrainConfig, train
+    from cade_cli.train.pairs import TRAINING_MODES
+
+    if training_mode not in TRAINING_MODES:
+        raise typer.BadParameter(f"must be one of {', '.join(TRAINING_MODES)}", param_hint="--training-mode")
 
     config = TrainConfig(out=str(out), textures=[str(t) for t in textures],
                          data_dir=str(data_dir) if data_dir else None, steps=steps, batch=batch, height=height,
@@ -70,7 +78,7 @@ def fit(
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          channels3d=channels3d, init_partial=init_partial, census=census,
-                         time_budget_s=time_budget)
+                         training_mode=training_mode, time_budget_s=time_budget)
     train(config, resume=resume)
 
 

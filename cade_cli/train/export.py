@@ -20,6 +20,7 @@ import torch
 from cade_cli.checksum import file_sha256
 from cade_cli.model_card import write_card
 from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, design_of, parameter_count
+from cade_cli.train.pairs import network_input_of
 
 OPSET = 17
 INPUT_NAMES = ["left", "right"]
@@ -105,7 +106,10 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
                         "-> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
                                             " -> bilinear x4 (refinement net trained, not exported)"),
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
-        input_transform="cade_cli.spectral.color_agnostic (window 3) on each band", opset=OPSET,
+        input=network_input_of(state["config"].get("training_mode", "cade")),
+        input_transform=("cade_cli.spectral.color_agnostic (window 3) on each band"
+                         if state["config"].get("training_mode", "cade") == "cade"
+                         else "cade_cli.spectral.normalised (min..max to [0, 1]) on each band"), opset=OPSET,
         onnx_vs_torch_max_abs_diff=max_difference, steps=state["step"], train_wall_time_s=round(state["elapsed_s"]),
         train_config=state["config"], **(extra or {}),
     )

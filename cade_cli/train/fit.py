@@ -21,7 +21,8 @@ import torch.nn.functional as F
 from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
 from cade_cli.matching.network import pad_to_divisor
 from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count, transferable
-from cade_cli.train.pairs import cade_pair
+from cade_cli.train.pairs import TRAINING_MODES, network_input_of
+from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
 from cade_cli.train.scenes import Misalignment, TexturePool, render_scene
 
@@ -75,6 +76,10 @@ class TrainConfig:
     amp: bool = False
     """Mixed precision: the forward pass and the loss under bf16 autocast (the GPU recipe,
     docs/gpu-recipe.md); weights, gradients and the optimizer stay float32."""
+    training_mode: str = "cade"
+    """How a scene becomes a training pair (:data:`~cade_cli.train.pairs.TRAINING_MODES`):
+    ``cade`` (every shipped model), or the paper's comparison modes ``csdl`` and ``pristine``
+    (the training ablation); the exported card's ``input`` follows from it."""
     time_budget_s: float | None = None
     """Leave the loop, checkpointed, once this many seconds have passed in this process
     (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""
@@ -105,17 +110,19 @@ def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes 
     (no random draw for that when the share is 0, so earlier runs reproduce), else rendered."""
     if real is not None and rng.random() < config.real_share:
         scene = real.draw(rng, config.height, config.width, limit=config.levels - 1)
-        return cade_pair(scene, rng)
-    return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned)
+        return mode_pair(scene, rng, config.training_mode)
+    return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned,
+                          mode=config.training_mode)
 
 
 def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
-                   misaligned: float = 0.0):
-    """One CADE pair of a freshly rendered scene; disparities below ``levels - 1`` px; a share
-    ``misaligned`` of the pairs has a vertically misaligned right view."""
+                   misaligned: float = 0.0, mode: str = "cade"):
+    """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
+    disparities below ``levels - 1`` px; a share ``misaligned`` of the pairs has a vertically
+    misaligned right view."""
     scene = render_scene(rng, height, width, limit=levels - 1, textures=pool,
                          misalignment=Misalignment(share=misaligned))
-    return cade_pair(scene, rng)
+    return mode_pair(scene, rng, mode)
 
 
 def collate(pairs) -> dict[str, torch.Tensor]:
@@ -154,18 +161,21 @@ def predict(net: CadeNet, left: np.ndarray, right: np.ndarray, device: str) -> n
 
 def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Fixed validation pairs: 24 generated CS pairs (seed 10**6 + i, never a training
-    seed; only with ``synthetic``) and, when ``data_dir`` holds them, Middlebury 2014 Q and
-    Middlebury 2005 in the CS tasks R>B and B>R, downscaled by powers of 2 until the scene's
-    range fits the model."""
+    seed; made in the run's training mode; only with ``synthetic``) and, when ``data_dir``
+    holds them, Middlebury 2014 Q and Middlebury 2005 in the CS tasks R>B and B>R, downscaled
+    by powers of 2 until the scene's range fits the model, each band given as the runtime
+    gives it to a network of this mode (:func:`~cade_cli.spectral.network_input`)."""
     import cv2
 
     from cade_cli.errors import CadeError
-    from cade_cli.spectral import color_agnostic
+    from cade_cli.spectral import network_input
 
+    kind = network_input_of(config.training_mode)
     sets = {}
     if synthetic:
         pool = TexturePool([Path(folder) for folder in config.textures])
-        pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.levels) for i in range(24))
+        pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.levels,
+                                mode=config.training_mode) for i in range(24))
         sets["synthetic"] = [(pair.left, pair.right, pair.disparity) for pair in pairs]
     if config.data_dir and Path(config.data_dir).is_dir():
         from cade_cli.data import get_dataset
@@ -184,7 +194,7 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
                 left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
                 gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
                 for a, b in ((0, 2), (2, 0)):
-                    middlebury.append((color_agnostic(left[..., a]), color_agnostic(right[..., b]), gt))
+                    middlebury.append((network_input(left[..., a], kind), network_input(right[..., b], kind), gt))
             sets[name] = middlebury
     return sets
 
@@ -200,6 +210,8 @@ def evaluate(net: CadeNet, pairs, device: str) -> tuple[float, float]:
 
 def train(config: TrainConfig, *, resume: bool = True) -> Path:
     """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
+    if config.training_mode not in TRAINING_MODES:
+        raise ValueError(f"unknown training mode {config.training_mode!r}; choose one of {', '.join(TRAINING_MODES)}")
     torch.set_num_threads(config.threads)
     device_type = torch.device(config.device).type
     if device_type == "cuda":
@@ -226,6 +238,9 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log_path = out / "log.csv"
     new_log = not log_path.exists() or start == 0
+    if not new_log:  # a run killed between checkpoints logged steps it will now redo: drop them
+        rows = log_path.read_text().splitlines(keepends=True)
+        log_path.write_text("".join(rows[:1] + [row for row in rows[1:] if int(row.split(",", 1)[0]) <= start]))
     log = log_path.open("w" if new_log else "a", newline="")
     writer = csv.writer(log)
     if new_log:

@@ -1,9 +1,20 @@
-"""Cross-spectral training pairs made CADE's way (METHOD.md sections 2-3).
+"""Cross-spectral training pairs made CADE's way (METHOD.md sections 2-3), and the two
+ways the paper compares it with (section 6), for the training ablation.
 
 A rendered RGB stereo pair becomes a cross-spectral one by synthesizing the 11 bands of
 each view (the same coefficients for both views, so a band means the same "filter" in
 both) and drawing the left and the right band independently; both then go through the
-runtime's own :func:`~cade_cli.spectral.color_agnostic`.
+runtime's own :func:`~cade_cli.spectral.color_agnostic`. The training modes
+(:data:`TRAINING_MODES`):
+
+* ``cade``: as above (every shipped model);
+* ``csdl``: the left and the right band drawn independently from the four weighted-sum
+  bands only (:data:`CSDL_BANDS`), each with its own simulated sensor noise, no color
+  agnostic transform (each band rescaled to [0, 1]: :func:`~cade_cli.spectral.normalised`);
+* ``pristine``: ordinary stereo training: the same channel (R, G or B) on both sides, no
+  transform (rescaled to [0, 1]).
+
+All three draw their scenes (and so their per-view camera changes) from the same generator.
 """
 
 from __future__ import annotations
@@ -12,13 +23,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cade_cli.spectral import BAND_NAMES, color_agnostic, synthesize_bands
+from cade_cli.spectral import BAND_NAMES, color_agnostic, normalised, synthesize_bands
 from cade_cli.train.scenes import StereoScene
+
+
+TRAINING_MODES: tuple[str, ...] = ("cade", "csdl", "pristine")
+CSDL_BANDS: tuple[str, ...] = ("BG", "BR", "GR", "BGR")
+"""The four weighted-sum bands of METHOD.md section 2, the only ones CSDL trains on."""
+CSDL_NOISE = (0.0, 0.03)
+"""Range of the standard deviation (of the band's [0, 1] scale) of the Gaussian noise CSDL
+adds to each view of a pair independently."""
+PRISTINE_BANDS: tuple[str, ...] = ("R", "G", "B")
+
+
+def network_input_of(mode: str) -> str:
+    """The card's ``input`` (:data:`~cade_cli.spectral.NETWORK_INPUTS`) of a network trained in ``mode``."""
+    return "cade" if mode == "cade" else "normalised"
 
 
 @dataclass(frozen=True)
 class CadePair:
-    """left, right: (H, W) float32 color-agnostic bands; disparity, nonoccluded as in the scene."""
+    """left, right: (H, W) float32 bands as the network takes them (color-agnostic, or for
+    the ablation's other modes rescaled to [0, 1]); disparity, nonoccluded as in the scene."""
 
     left: np.ndarray
     right: np.ndarray
@@ -40,3 +66,24 @@ def cade_pair(scene: StereoScene, rng: np.random.Generator) -> CadePair:
         nonoccluded=scene.nonoccluded,
         bands=(left_name, right_name),
     )
+
+
+def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cade") -> CadePair:
+    """A pair of ``scene`` made in training ``mode`` (:data:`TRAINING_MODES`); ``cade`` is
+    :func:`cade_pair` itself, drawing exactly the same random numbers."""
+    if mode == "cade":
+        return cade_pair(scene, rng)
+    if mode not in TRAINING_MODES:
+        raise ValueError(f"unknown training mode {mode!r}; choose one of {', '.join(TRAINING_MODES)}")
+    seed = int(rng.integers(2**63))
+    left_bands = synthesize_bands(scene.left, np.random.default_rng(seed))
+    right_bands = synthesize_bands(scene.right, np.random.default_rng(seed))
+    if mode == "pristine":
+        left_name = right_name = str(rng.choice(PRISTINE_BANDS))
+        left, right = left_bands[left_name], right_bands[right_name]
+    else:
+        left_name, right_name = (str(name) for name in rng.choice(CSDL_BANDS, size=2))
+        left, right = (band + rng.normal(0.0, rng.uniform(*CSDL_NOISE), band.shape).astype(np.float32)
+                       for band in (left_bands[left_name], right_bands[right_name]))
+    return CadePair(left=normalised(left), right=normalised(right), disparity=scene.disparity,
+                    nonoccluded=scene.nonoccluded, bands=(left_name, right_name))
