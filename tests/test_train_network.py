@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -306,3 +307,22 @@ def test_a_census_net_starts_as_the_checkpoint_it_was_widened_from(tmp_path: Pat
     path = tmp_path / "census.onnx"
     export_onnx(trained.eval(), path)
     assert verify_onnx(trained.eval(), path, sizes=((40, 56),)) < 1e-3
+
+
+def test_a_batch_without_ground_truth_is_skipped_not_learned(tmp_path: Path, monkeypatch, capsys):
+    """A batch whose loss is not finite (no pixel with ground truth in range, or a bf16
+    overflow) is skipped: one such step would otherwise leave NaN weights for the rest of the run."""
+    import cade_cli.train.fit as fit
+
+    real_pair = fit.training_pair
+
+    def no_ground_truth(rng, pool, real, config):
+        pair = real_pair(rng, pool, real, config)
+        return dataclasses.replace(pair, disparity=np.full_like(pair.disparity, np.nan))
+
+    monkeypatch.setattr(fit, "training_pair", no_ground_truth)
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=32, width=64, levels=16,
+                         workers=0, validate_every=100, lr=1.0, warmup=0)
+    state = torch.load(train(config), weights_only=False)["model"]
+    assert all(torch.isfinite(value).all() for value in state.values() if value.is_floating_point())
+    assert capsys.readouterr().out.count("step skipped") == 2

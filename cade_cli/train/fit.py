@@ -265,19 +265,25 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             out_ = {key: value.float() for key, value in out_.items()}
             loss, mask = loss_terms(out_, batch["disparity"], config.levels, config.coarse_weight)
         optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
-        optimizer.step()
-        running_loss += loss.item()
-        running_epe += (out_["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
-        seen += 1
         done = step + 1
+        usable = bool(mask.any()) and bool(torch.isfinite(loss))
+        if usable:
+            loss.backward()
+            usable = bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)))
+        if usable:
+            optimizer.step()
+            running_loss += loss.item()
+            running_epe += (out_["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
+            seen += 1
+        else:  # a batch without ground truth, or an overflow (bf16): one NaN step would poison the run
+            print(f"step {done}: loss or gradient not finite (or no ground truth); step skipped", flush=True)
         elapsed = elapsed_before + time.time() - started
         if done % 50 == 0:
-            writer.writerow([done, f"{elapsed:.0f}", f"{learning_rate(config, step):.2e}", f"{running_loss / seen:.4f}",
-                             f"{running_epe / seen:.3f}", "train", "", ""])
+            writer.writerow([done, f"{elapsed:.0f}", f"{learning_rate(config, step):.2e}",
+                             f"{running_loss / max(seen, 1):.4f}", f"{running_epe / max(seen, 1):.3f}", "train", "", ""])
             log.flush()
-            print(f"step {done} {elapsed:.0f}s loss {running_loss / seen:.3f} epe {running_epe / seen:.2f}", flush=True)
+            print(f"step {done} {elapsed:.0f}s loss {running_loss / max(seen, 1):.3f} "
+                  f"epe {running_epe / max(seen, 1):.2f}", flush=True)
             running_loss, running_epe, seen = 0.0, 0.0, 0
         if done % config.validate_every == 0 or done == config.steps:
             net.eval()
