@@ -27,6 +27,11 @@ INPUT_NAMES = ["left", "right"]
 OUTPUT_NAMES = ["disparity", "uncertainty"]
 
 
+INPUT_TRANSFORMS = {"cade": "cade_cli.spectral.color_agnostic (window 3) on each band",
+                    "normalised": "cade_cli.spectral.normalised (min..max to [0, 1]) on each band"}
+"""The card's ``input_transform`` text for each ``input`` (:data:`cade_cli.spectral.NETWORK_INPUTS`)."""
+
+
 OTHER_RANGES = (96, 160, 192, 224, 256)
 """Besides the trained range, each export also writes the same weights searching these
 ranges: wider ones keep wide scenes at full resolution instead of downscaling them, the
@@ -92,6 +97,7 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
     0 .. R - 1) to ``<stem>-R.onnx`` beside it; the card (:mod:`cade_cli.model_card`)
     lists them narrowest first."""
     net, state = load_checkpoint(checkpoint)
+    network_input = network_input_of(state["config"].get("training_mode", "cade"))
     targets = sorted([(net.levels, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
                                                     for r in set(other_ranges) if r != net.levels])
     variants, max_difference = [], 0.0
@@ -106,10 +112,7 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
                         "-> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
                                             " -> bilinear x4 (refinement net trained, not exported)"),
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
-        input=network_input_of(state["config"].get("training_mode", "cade")),
-        input_transform=("cade_cli.spectral.color_agnostic (window 3) on each band"
-                         if state["config"].get("training_mode", "cade") == "cade"
-                         else "cade_cli.spectral.normalised (min..max to [0, 1]) on each band"), opset=OPSET,
+        input=network_input, input_transform=INPUT_TRANSFORMS[network_input], opset=OPSET,
         onnx_vs_torch_max_abs_diff=max_difference, steps=state["step"], train_wall_time_s=round(state["elapsed_s"]),
         train_config=state["config"], **(extra or {}),
     )

@@ -53,11 +53,16 @@ class CadePair:
     bands: tuple[str, str]
 
 
+def both_views_bands(scene: StereoScene, rng: np.random.Generator) -> tuple[dict, dict]:
+    """The 11 bands of each view, synthesized with the same coefficients (one seed drawn from ``rng``)."""
+    seed = int(rng.integers(2**63))
+    return (synthesize_bands(scene.left, np.random.default_rng(seed)),
+            synthesize_bands(scene.right, np.random.default_rng(seed)))
+
+
 def cade_pair(scene: StereoScene, rng: np.random.Generator) -> CadePair:
     """Draw a left and a right band of ``scene`` independently and CADE-transform both."""
-    seed = int(rng.integers(2**63))
-    left_bands = synthesize_bands(scene.left, np.random.default_rng(seed))
-    right_bands = synthesize_bands(scene.right, np.random.default_rng(seed))
+    left_bands, right_bands = both_views_bands(scene, rng)
     left_name, right_name = (str(name) for name in rng.choice(BAND_NAMES, size=2))
     return CadePair(
         left=color_agnostic(left_bands[left_name]),
@@ -75,9 +80,7 @@ def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cad
         return cade_pair(scene, rng)
     if mode not in TRAINING_MODES:
         raise ValueError(f"unknown training mode {mode!r}; choose one of {', '.join(TRAINING_MODES)}")
-    seed = int(rng.integers(2**63))
-    left_bands = synthesize_bands(scene.left, np.random.default_rng(seed))
-    right_bands = synthesize_bands(scene.right, np.random.default_rng(seed))
+    left_bands, right_bands = both_views_bands(scene, rng)
     if mode == "pristine":
         left_name = right_name = str(rng.choice(PRISTINE_BANDS))
         left, right = left_bands[left_name], right_bands[right_name]
