@@ -3,11 +3,12 @@
 
 1. **Seams.** On Middlebury 2014 (Q) scenes, cross-spectral task ``R>B`` (red band left,
    blue band right), each method runs once untiled and once tiled with a forced small core
-   (:func:`cade_cli.tiling.estimate_disparity_tiled` with ``core``), over [0, the scene's
-   max_disp]. Over the pixels valid in both maps, the mean |tiled - untiled| (px) and the
-   share of pixels that differ by more than 0.01 px are reported by distance to the
-   nearest seam (:func:`cade_cli.tiling.seam_distance`); EPE against the ground truth
-   (densified maps, every GT pixel) for both.
+   (:func:`cade_cli.tiling.estimate_disparity_tiled` with ``core``; each method's own
+   collar, :func:`cade_cli.tiling.method_collar`), over [0, the scene's max_disp]. Over
+   the pixels valid in both maps, the mean |tiled - untiled| (px) and the share of pixels
+   that differ by more than 0.01 px are reported by distance to the nearest seam
+   (:func:`cade_cli.tiling.seam_distance`); EPE against the ground truth (densified maps,
+   every GT pixel) for both.
 2. **A large pair.** A synthetic pair of ``--large`` size (a random texture on a slanted
    plane, disparity 10..390 px; the right band a gain and gamma of the left one), written as
    16-bit PNGs, goes through ``cade disparity --max-disp 400 --memory-limit BUDGET`` in a
@@ -37,7 +38,8 @@ from cade_cli.data import get_dataset
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.matching import densify
 from cade_cli.stereo import estimate_disparity
-from cade_cli.tiling import BASE_BYTES, estimate_disparity_tiled, matching_memory_bytes, parse_memory, seam_distance
+from cade_cli.tiling import (BASE_BYTES, estimate_disparity_tiled, matching_memory_bytes, method_collar, parse_memory,
+                              seam_distance)
 
 METHODS = ("census-sgm", "sgbm", "cade")
 BINS = ((0, 8), (8, 32), (32, None))
@@ -165,7 +167,8 @@ def main() -> None:
              f"Machine: {os.cpu_count()} CPUs, shared with a training run; timings are indicative.", ""]
     if not args.skip_seams:
         rows = seam_rows(args.data_dir, args.scenes, args.core, methods)
-        lines += [f"## Seams: middlebury14 (Q), task R>B, {args.core} px cores, 32 px collar", "",
+        collars = ", ".join(f"{method} {method_collar(method)} px" for method in methods)
+        lines += [f"## Seams: middlebury14 (Q), task R>B, {args.core} px cores, collar: {collars}", "",
                   "Over pixels valid in both maps: mean |tiled - untiled| (px) / share differing by > 0.01 px, "
                   "by distance to the nearest seam. EPE: densified maps, every GT pixel.", "",
                   "| method | tile ranges | scenes | tiles | < 8 px | 8-32 px | >= 32 px | EPE untiled | EPE tiled | valid untiled | "

@@ -6,11 +6,11 @@ is one job, :func:`run_pair`: it reads the two bands, resolves the range (``auto
 by :func:`cade_cli.range.resolve_range`), calls :func:`cade_cli.tiling.estimate_disparity_tiled`
 (the path of ``cade disparity``: the pair matched whole when it fits ``--memory-limit``,
 else as tiles) or, with a rig, :func:`cade_cli.rig_pair.match_rig_pair` (the path of
-``cade disparity --rig``), and writes every output of the pair with
-:func:`cade_cli.atomic.atomic_outputs`: the disparity, the optional visualisation,
-validity, confidence, depth and points, and last a *record* beside the disparity
-(``<output>.cade.json``) that holds the sha256 of the inputs and of every output and the
-options that made them.
+``cade disparity --rig``, which does both on the rectified pair), and writes every output
+of the pair with :func:`cade_cli.atomic.atomic_outputs`: the disparity, the optional
+visualisation, validity, confidence, depth and points, and last a *record* beside the
+disparity (``<output>.cade.json``) that holds the sha256 of the inputs and of every
+output and the options that made them.
 
 Resume: a pair is finished when its record is there, names the same inputs (by sha256) and
 options, and every output it lists is there with the sha256 it lists
@@ -61,7 +61,7 @@ from cade_cli.disparity_io import DISPARITY_SUFFIXES
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
 from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES
-from cade_cli.range import AUTO, parse_bound
+from cade_cli.range import AUTO, RangeEstimate, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
 from cade_cli.tiling import BASE_BYTES, available_memory_bytes, default_memory_limit, matching_memory_bytes
 
@@ -145,15 +145,7 @@ class PairOptions:
 
         if self.frame not in FRAMES:
             raise CadeError(f"unknown --frame {self.frame!r}; choose rectified or original")
-        if self.memory_limit is not None:
-            raise CadeError("--memory-limit does not work with --rig yet; drop it (the rectified pair is matched whole)")
-        self.check_rig_range()
         rig_pair_rectification(load_rig(self.rig), self.camera)
-
-    def check_rig_range(self) -> None:
-        """With a rig, refuse an ``auto`` bound (as ``cade disparity --rig`` does)."""
-        if self.rig is not None and AUTO in (self.min_disp, self.max_disp):
-            raise CadeError("--min-disp/--max-disp auto do not work with --rig yet; give the range in rectified px")
 
     def fingerprint(self) -> dict:
         """What decides a pair's outputs, as stored in its record: these options and, for
@@ -532,8 +524,7 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
                                             max_disp=searched.maximum, preprocess=options.preprocess,
                                             model=options.model, memory_limit=budget)
     if plan.tiled:
-        notes.append(f"a pair that does not fit --memory-limit {budget / 2**30:.1f} GB whole is matched as tiles "
-                     "(docs/scale.md, \"Tiling\"); the log gives each pair's tile count")
+        notes.append(_tiled_note(budget))
     if options.confidence and result.confidence is None:
         raise CadeError(f"method {options.method} gives no confidence; drop --confidence")
 
@@ -541,31 +532,44 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
         write_match_outputs(files, dense=densify(result.disparity, result.valid), disparity=result.disparity,
                             valid=result.valid, confidence=result.confidence, fill=options.fill)
 
-    estimated = (options.min_disp == AUTO, options.max_disp == AUTO)
-    return _Matched((searched.minimum, searched.maximum),
-                    None if estimate is None else estimate.describe(estimated=estimated),
-                    float(result.valid.mean()), write, {"tiles": len(plan.tiles)})
+    return _Matched((searched.minimum, searched.maximum), _range_note(options, estimate), float(result.valid.mean()),
+                    write, {"tiles": len(plan.tiles)})
+
+
+def _tiled_note(budget: int) -> str:
+    """The note of a batch whose pairs, some of them, were matched as tiles within ``budget`` (bytes)."""
+    return (f"a pair that does not fit --memory-limit {budget / 2**30:.1f} GB whole is matched as tiles "
+            "(docs/scale.md, \"Tiling\"); the log gives each pair's tile count")
+
+
+def _range_note(options: PairOptions, estimate: RangeEstimate | None) -> str | None:
+    """How the ``auto`` bounds of ``options`` were estimated, as ``cade disparity`` announces
+    it; None when ``estimate`` is None (no ``auto`` bound)."""
+    if estimate is None:
+        return None
+    return estimate.describe(estimated=(options.min_disp == AUTO, options.max_disp == AUTO))
 
 
 def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
-    """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rig_pair`);
-    a rectification self-check above tolerance, or skipped, is a note."""
+    """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rig_pair`:
+    an ``auto`` bound estimated on the rectified pair, matched whole or as tiles within the
+    memory limit); a rectification self-check above tolerance, or skipped, is a note."""
     from cade_cli.rectification import VERTICAL_TOLERANCE_PX
     from cade_cli.rig import load_rig
     from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
-    from cade_cli.stereo import default_max_disparity
 
     options = pair.options
-    options.check_rig_range()  # a manifest's range too
     rig = load_rig(options.rig)
     other, rectification = rig_pair_rectification(rig, options.camera)
     check_rig_pair(rig, rectification, left, right, paths=(pair.left, pair.right))
     width = rectification.image_size[0]
-    searched = (int(options.min_disp),
-                default_max_disparity(width) if options.max_disp is None else int(options.max_disp))
+    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
     found, framed = match_rig_pair(rig, left, right, other=other, frame=options.frame, fill=options.fill,
-                                   fix_vertical=options.fix_vertical, method=options.method, min_disp=searched[0],
-                                   max_disp=searched[1], preprocess=options.preprocess, model=options.model)
+                                   fix_vertical=options.fix_vertical, method=options.method, min_disp=options.min_disp,
+                                   max_disp=options.max_disp, preprocess=options.preprocess, model=options.model,
+                                   memory_limit=budget)
+    if found.plan.tiled:
+        notes.append(_tiled_note(budget))
     check = found.misalignment
     if check is None:
         notes.append(f"{pair.left}: rectification self-check skipped: {found.self_check_problem}")
@@ -581,8 +585,10 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
     def write(files: dict[str, Path]) -> None:
         write_rig_outputs(files, framed, fill=options.fill, method=options.method)
 
-    return _Matched(searched, None, float(framed.valid.mean()), write,
-                    {"rectification": list(rectification.cameras), "self_check": self_check})
+    return _Matched((found.range.minimum, found.range.maximum), _range_note(options, found.range_estimate),
+                    float(framed.valid.mean()), write,
+                    {"tiles": len(found.plan.tiles), "rectification": list(rectification.cameras),
+                     "self_check": self_check})
 
 
 # --- memory ----------------------------------------------------------------------------------------------------------
@@ -625,14 +631,12 @@ def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
 
 def job_memory_bytes(pairs: Sequence[Pair]) -> tuple[int, int, int]:
     """(width, height, bytes) of the largest of ``pairs`` (:func:`planned_pair_memory`), the
-    bytes lowered to a worker's memory limit when that is smaller (a worker matches a pair
-    that does not fit its limit as tiles; a rig's pair is matched whole)."""
+    bytes lowered to a worker's memory limit when that is smaller (a worker matches a pair,
+    rectified or not, that does not fit its limit as tiles)."""
     width, height, largest = max((planned_pair_memory(pair) for pair in pairs), key=lambda plan: plan[2])
-    options = pairs[0].options  # the limit and the rig are the batch's, not a manifest row's
-    if options.rig is None:
-        budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
-        largest = min(largest, budget)
-    return width, height, largest
+    options = pairs[0].options  # the limit is the batch's, not a manifest row's
+    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+    return width, height, min(largest, budget)
 
 
 def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) -> int:
@@ -752,6 +756,8 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
                     answer = None
                 if answer is None:  # the process ended without answering: it died
                     worker.connection.close()
+                    worker.process.join()
+                    remove_stale_temporaries([pair])  # what it was writing; no one else writes this pair
                     workers[slot] = start()
                     failed = _retry_or_fail(index, pair, "its worker process died (killed, or out of memory)",
                                             attempts, waiting)

@@ -162,10 +162,6 @@ def disparity(
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
     min_disp, max_disp = _parse_range_options(min_disp, max_disp)
-    if rig_file is not None and "auto" in (min_disp, max_disp):
-        raise CadeError("--min-disp/--max-disp auto do not work with --rig yet; give the range in rectified px")
-    if rig_file is not None and memory_limit is not None:
-        raise CadeError("--memory-limit does not work with --rig yet; drop it (the rectified pair is matched whole)")
     budget = _parse_memory_limit(memory_limit)
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
     if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
@@ -188,8 +184,8 @@ def disparity(
         _disparity_with_rig(
             rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
             fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
-            model=model, vis=vis, left_band=left_band, right_band=right_band, fill=fill, validity=validity,
-            confidence=confidence)
+            model=model, memory_limit=budget, vis=vis, left_band=left_band, right_band=right_band, fill=fill,
+            validity=validity, confidence=confidence)
         return
     if rig_only:
         raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
@@ -224,14 +220,17 @@ def disparity(
 
 
 def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path, camera, frame, depth, points,
-                        fix_vertical, method, max_disp, min_disp, preprocess, model, vis, left_band, right_band, fill,
-                        validity, confidence) -> None:
-    """`cade disparity --rig`: rectify LEFT/RIGHT through the rig, check, match, write in the chosen frame."""
+                        fix_vertical, method, max_disp, min_disp, preprocess, model, memory_limit, vis, left_band,
+                        right_band, fill, validity, confidence) -> None:
+    """`cade disparity --rig`: rectify LEFT/RIGHT through the rig, check, match (the range
+    resolved on the rectified pair, whole or as tiles within ``memory_limit``, bytes), write
+    in the chosen frame."""
     import numpy as np
 
     from cade_cli.atomic import atomic_outputs
     from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
+    from cade_cli.range import AUTO
     from cade_cli.rectification import FRAMES
     from cade_cli.rig import load_rig
     from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
@@ -249,11 +248,16 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     check_rig_pair(rig, rectification, left_image, right_image, paths=(left, right))
     started = time.perf_counter()
     width = rectification.image_size[0]
-    max_disp = _resolve_max_disp(max_disp, width)
+    if AUTO not in (min_disp, max_disp):
+        max_disp = _resolve_max_disp(max_disp, width)
     found, framed = match_rig_pair(rig, left_image, right_image, other=other, frame=frame, fill=fill,
                                    fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp,
-                                   preprocess=preprocess, model=model)
+                                   preprocess=preprocess, model=model, memory_limit=memory_limit)
     seconds = time.perf_counter() - started
+    if found.range_estimate is not None:
+        _note(found.range_estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    if found.plan.tiled:
+        _note(found.plan.describe())
     if found.misalignment is not None:
         _report_misalignment(found.misalignment, width, fixed=fix_vertical, corrected=found.corrected)
     else:
@@ -269,7 +273,8 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     print(f"{output}: {width}x{height} ({frame} frame of {rectification.cameras[0]}; rectified "
           f"{rectification.cameras[0]}-{rectification.cameras[1]}, focal {rectification.focal:.1f} px, baseline "
           f"{rectification.baseline:.4g} m), {method}+{get_matcher(method).resolve_preprocess(preprocess)}, searched "
-          f"[{min_disp}, {max_disp}], disparity {float(np.nanmin(known)):.2f}..{float(np.nanmax(known)):.2f} px, "
+          f"[{found.range.minimum}, {found.range.maximum}], "
+          f"disparity {float(np.nanmin(known)):.2f}..{float(np.nanmax(known)):.2f} px, "
           f"valid {100.0 * framed.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
           + (f"; {written} points in {points}" if points is not None else ""))
 
@@ -447,8 +452,8 @@ def rectify(
     from cade_cli.imageio import load_image
     from cade_cli.rectification import (
         MIN_CORRECTION_PX, RECTIFIED_IMAGE_SUFFIXES, check_image_size, correct_vertical_misalignment,
-        epipolar_picture, luminance_of, measure_vertical_misalignment, rectification_of, rectify_pair,
-        write_rectified_image,
+        epipolar_picture, luminance_of, measure_vertical_misalignment, needs_mirroring, rectification_of,
+        rectify_pair, write_rectified_image,
     )
     from cade_cli.errors import CadeError
     from cade_cli.rig import load_rig
@@ -465,7 +470,8 @@ def rectify(
         check_image_size(rig, name, image, path=path)
     left_rect, right_rect = rectify_pair(rig, *images, rectification=rectification)
     try:
-        found = measure_vertical_misalignment(luminance_of(left_rect), luminance_of(right_rect))
+        found = measure_vertical_misalignment(luminance_of(left_rect), luminance_of(right_rect),
+                                              mirrored=needs_mirroring(rectification))
     except CadeError as error:
         if fix_vertical:
             raise

@@ -9,7 +9,8 @@
   same for a band and its inverse, and similar across bands) are matched, and a vertical
   offset plus a roll about the image centre are fitted to their row differences by a
   robust least squares; the right image can then be resampled to cancel them.
-- :func:`rig_disparity`: all of the above, then the matcher, on a rig's pair.
+- :func:`rig_disparity`: all of the above, then the range and the matcher (whole or as
+  tiles within a memory budget), on a rig's pair.
 - :func:`in_frame`, :func:`rectified_points`, :func:`write_ply`: results on the rectified
   or the original reference image, metric depth and a point cloud.
 """
@@ -25,9 +26,11 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching import DisparityResult, densify
+from cade_cli.matching import DisparityRange, DisparityResult, densify
 from cade_cli.rig import Camera, Rectification, Rig
-from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, estimate_disparity
+from cade_cli.range import RangeEstimate, resolve_range
+from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS
+from cade_cli.tiling import TilePlan, default_memory_limit, estimate_disparity_tiled
 
 VERTICAL_TOLERANCE_PX = 0.5
 """Residual vertical misalignment above which the self-check warns."""
@@ -289,7 +292,7 @@ def gradient_image(band: np.ndarray) -> np.ndarray:
 
 
 def measure_vertical_misalignment(left: np.ndarray, right: np.ndarray, *, max_vertical: float = 8.0,
-                                  max_disp: float | None = None) -> VerticalMisalignment:
+                                  max_disp: float | None = None, mirrored: bool = False) -> VerticalMisalignment:
     """Fit a vertical offset and roll to sparse matches between a rectified pair.
 
     SIFT features on :func:`gradient_image` of each band are matched (ratio test 0.8,
@@ -303,6 +306,8 @@ def measure_vertical_misalignment(left: np.ndarray, right: np.ndarray, *, max_ve
         left, right: (H, W) float bands of one rectified pair, same size, any range.
         max_vertical: the largest row difference considered, px.
         max_disp: the largest disparity considered, px (default: the image width).
+        mirrored: the ``right`` camera is the one on the left (:func:`needs_mirroring`):
+            its matches lie at x_right = x_left + d, so the disparity is ``x_right - x_left``.
 
     Raises:
         CadeError: images of different sizes, or fewer than :data:`MIN_SELF_CHECK_MATCHES`
@@ -328,7 +333,7 @@ def measure_vertical_misalignment(left: np.ndarray, right: np.ndarray, *, max_ve
     points_left = np.float64([key_left[i].pt for i, _ in pairs])
     points_right = np.float64([key_right[j].pt for _, j in pairs])
     dy = points_right[:, 1] - points_left[:, 1]
-    dx = points_left[:, 0] - points_right[:, 0]
+    dx = (points_left[:, 0] - points_right[:, 0]) * (-1.0 if mirrored else 1.0)
     keep = (np.abs(dy) <= max_vertical) & (dx >= -8) & (dx <= max_disp + 8)
     x, dy = points_left[keep, 0], dy[keep]
     if len(dy) < MIN_SELF_CHECK_MATCHES:
@@ -369,7 +374,7 @@ def correct_vertical_misalignment(right: np.ndarray, misalignment: VerticalMisal
 
 
 def align_vertically(left: np.ndarray, right: np.ndarray, *, max_disp: float | None = None,
-                     min_correction: float = MIN_CORRECTION_PX) -> tuple[np.ndarray, VerticalMisalignment, bool]:
+                     min_correction: float = MIN_CORRECTION_PX, mirrored: bool = False) -> tuple[np.ndarray, VerticalMisalignment, bool]:
     """The self-check and its correction, as ``--fix-vertical`` and the rig benchmark run it.
 
     Measures the misalignment (:func:`measure_vertical_misalignment`) and, when it
@@ -383,7 +388,7 @@ def align_vertically(left: np.ndarray, right: np.ndarray, *, max_disp: float | N
     Raises:
         CadeError: too few matches to measure (:func:`measure_vertical_misalignment`).
     """
-    found = measure_vertical_misalignment(left, right, max_disp=max_disp)
+    found = measure_vertical_misalignment(left, right, max_disp=max_disp, mirrored=mirrored)
     if found.worst(right.shape[1]) < min_correction:
         return right, found, False
     return correct_vertical_misalignment(right, found), found, True
@@ -407,6 +412,10 @@ class RigDisparity:
             correction; None when it could not run (``self_check_problem`` says why).
         corrected: True when ``right`` was corrected for ``misalignment`` (``fix_vertical``
             and a misalignment of at least :data:`MIN_CORRECTION_PX`).
+        range: the inclusive range searched, px of the rectified frame (``auto`` bounds resolved).
+        range_estimate: how an ``auto`` bound was estimated (:func:`cade_cli.range.estimate_range`), else None.
+        plan: how the rectified pair was matched: whole, or as tiles within the memory
+            limit (:func:`cade_cli.tiling.plan_tiles`).
     """
 
     result: DisparityResult
@@ -417,14 +426,25 @@ class RigDisparity:
     misalignment: VerticalMisalignment | None
     self_check_problem: str | None
     corrected: bool
+    range: DisparityRange
+    range_estimate: RangeEstimate | None
+    plan: TilePlan
 
 
 def rig_disparity(
     rig: Rig, left: np.ndarray, right: np.ndarray, *, other: str | None = None, fix_vertical: bool = False,
-    self_check: bool = True, method: str = DEFAULT_METHOD, max_disp: int | None = None, min_disp: int = 0,
-    preprocess: str = DEFAULT_PREPROCESS, model: str | None = None,
+    self_check: bool = True, method: str = DEFAULT_METHOD, max_disp: int | str | None = None,
+    min_disp: int | str = 0, preprocess: str = DEFAULT_PREPROCESS, model: str | None = None,
+    memory_limit: int | None = None,
 ) -> RigDisparity:
-    """Rectify a rig's pair, check it, and match it (:func:`~cade_cli.stereo.estimate_disparity`).
+    """Rectify a rig's pair, check it, and match it as ``cade disparity`` matches a pair:
+    the range resolved (:func:`cade_cli.range.resolve_range`), then
+    :func:`cade_cli.tiling.estimate_disparity_tiled` (whole when it fits the memory limit,
+    else as tiles).
+
+    The range is resolved on the rectified bands as the matcher takes them (after the
+    vertical correction; mirrored when the other camera is the left one), so an ``auto``
+    bound is in the same rectified px, d >= 0 towards the near side, as a given one.
 
     Args:
         rig: the rig; ``left`` is its reference camera's image and ``right`` camera
@@ -434,35 +454,47 @@ def rig_disparity(
         fix_vertical: correct the measured vertical offset and roll before matching
             (:func:`align_vertically`); the self-check must then succeed.
         self_check: measure the vertical misalignment of the rectified pair.
-        method, max_disp, min_disp, preprocess, model: as for ``estimate_disparity``, in
-            pixels of the rectified frame (``max_disp=None``: a quarter of its width).
+        method, preprocess, model: as for :func:`~cade_cli.stereo.estimate_disparity`.
+        min_disp, max_disp: the range, px of the rectified frame, each a whole number or
+            ``"auto"`` (estimated on the rectified pair); ``max_disp=None``: a quarter of
+            the rectified width. The self-check considers matches up to ``max_disp``
+            (the image width while it is ``auto`` or None, since it runs first).
+        memory_limit: budget for the whole process, bytes, as ``--memory-limit``; None:
+            :func:`cade_cli.tiling.default_memory_limit`.
 
     Raises:
         CadeError: a bad rig or image size (:func:`rectify_pair`), too few self-check
-            matches with ``fix_vertical``, or what the matcher refuses.
+            matches with ``fix_vertical``, a range that cannot be estimated, or what the
+            matcher or the tiling refuses.
     """
     other = other if other is not None or rig.rectification is None else rig.rectification.cameras[1]
     rectification = rectification_of(rig, other)
     left_rect, right_rect = rectify_pair(rig, left, right, rectification=rectification)
+    check_max = max_disp if isinstance(max_disp, int) else None
+    flip = needs_mirroring(rectification)
     misalignment, problem, corrected = None, None, False
     if fix_vertical:
-        right_rect, misalignment, corrected = align_vertically(left_rect, right_rect, max_disp=max_disp)
+        right_rect, misalignment, corrected = align_vertically(left_rect, right_rect, max_disp=check_max, mirrored=flip)
     elif self_check:
         try:
-            misalignment = measure_vertical_misalignment(left_rect, right_rect, max_disp=max_disp)
+            misalignment = measure_vertical_misalignment(left_rect, right_rect, max_disp=check_max, mirrored=flip)
         except CadeError as error:
             problem = str(error).split(";")[0]
-    flip = needs_mirroring(rectification)
-    matched_left, matched_right = (left_rect[:, ::-1], right_rect[:, ::-1]) if flip else (left_rect, right_rect)
-    result = estimate_disparity(np.ascontiguousarray(matched_left), np.ascontiguousarray(matched_right), method=method,
-                                max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model)
+    matched_left, matched_right = (np.ascontiguousarray(band[:, ::-1]) if flip else band
+                                   for band in (left_rect, right_rect))
+    searched, estimate = resolve_range(matched_left, matched_right, min_disp=min_disp, max_disp=max_disp)
+    budget = default_memory_limit() if memory_limit is None else memory_limit
+    result, plan = estimate_disparity_tiled(matched_left, matched_right, method=method, min_disp=searched.minimum,
+                                            max_disp=searched.maximum, preprocess=preprocess, model=model,
+                                            memory_limit=budget)
     dense = densify(result.disparity, result.valid)
     if flip:
         result = DisparityResult(**{field.name: _unflip(getattr(result, field.name))
                                     for field in dataclasses.fields(result)})
         dense = _unflip(dense)
     return RigDisparity(result=result, dense=dense, left=left_rect, right=right_rect, rectification=rectification,
-                        misalignment=misalignment, self_check_problem=problem, corrected=corrected)
+                        misalignment=misalignment, self_check_problem=problem, corrected=corrected, range=searched,
+                        range_estimate=estimate, plan=plan)
 
 
 def _unflip(value):

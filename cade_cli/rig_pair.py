@@ -3,9 +3,11 @@
 LEFT is the image of the rig's reference camera, RIGHT that of another camera
 (:func:`rig_pair_rectification` picks it and its rectification). :func:`check_rig_pair`
 refuses images of the wrong size, :func:`match_rig_pair` rectifies, self-checks and
-matches the pair (:func:`cade_cli.rectification.rig_disparity`) and puts the result in the
-frame asked for (:func:`cade_cli.rectification.in_frame`), and :func:`write_rig_outputs`
-writes the outputs asked for. The commands only add their own messages around these.
+matches the pair (:func:`cade_cli.rectification.rig_disparity`: an ``auto`` range estimated
+on the rectified bands, the pair matched whole or as tiles within the memory limit, as
+``cade disparity`` matches a pair without a rig) and puts the result in the frame asked
+for (:func:`cade_cli.rectification.in_frame`), and :func:`write_rig_outputs` writes the
+outputs asked for. The commands only add their own messages around these.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ def check_rig_pair(rig: Rig, rectification: Rectification, left: np.ndarray, rig
 
 def match_rig_pair(
     rig: Rig, left: np.ndarray, right: np.ndarray, *, other: str | None, frame: str, fill: str, fix_vertical: bool,
-    method: str, min_disp: int, max_disp: int, preprocess: str, model: str | None,
+    method: str, min_disp: int | str, max_disp: int | str | None, preprocess: str, model: str | None,
+    memory_limit: int | None,
 ) -> tuple[RigDisparity, FramedDisparity]:
     """Rectify, self-check and match a rig's pair, and put the result in ``frame``.
 
@@ -57,14 +60,18 @@ def match_rig_pair(
         left, right: (H, W) float bands of the reference camera and of ``other``.
         frame: ``rectified`` or ``original`` (:data:`cade_cli.rectification.FRAMES`).
         fill: ``row`` (depth and points from the filled map) or ``none``.
-        fix_vertical, method, min_disp, max_disp, preprocess, model: as for
-            :func:`~cade_cli.rectification.rig_disparity`, the range in rectified px.
+        fix_vertical, method, min_disp, max_disp, preprocess, model, memory_limit: as for
+            :func:`~cade_cli.rectification.rig_disparity`: the range in rectified px, a
+            bound ``auto`` estimated on the rectified pair; the pair matched whole when it
+            fits ``memory_limit`` (bytes; None: the default), else as tiles.
 
     Returns:
-        (the match in the rectified frame, with the self-check's finding; the outputs in ``frame``).
+        (the match in the rectified frame, with the self-check's finding, the range
+        searched and the tile plan; the outputs in ``frame``).
     """
     found = rig_disparity(rig, left, right, other=other, fix_vertical=fix_vertical, method=method,
-                          max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model)
+                          max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model,
+                          memory_limit=memory_limit)
     return found, in_frame(found, rig, frame=frame, fill=fill == "row")
 
 

@@ -9,11 +9,14 @@ disparity range, seeded from a low-resolution pass over the whole pair:
 2. **The layout.** Tiles are a grid of square cores of the left image (the last row and
    column of cores are as large as the others, overlapping their neighbours' cores where
    the image does not divide evenly; there the later tile's values are kept). Each core is
-   matched inside a window: the core plus a ``collar`` on every side, widened on the left
-   by the tile's largest disparity and on the right by its most negative one, so every
-   pixel of the core finds its match (I_left(y, x) ~ I_right(y, x - d)) inside the window.
-   Left and right are cropped to the same window, so disparities are unchanged; at an image
-   border the window shifts inwards and keeps its width.
+   matched inside a window: the core plus a ``collar`` on every side (:func:`method_collar`:
+   wider for a learned method, whose network sees further), widened on the left by the
+   tile's largest disparity (for a learned method the top level of its network's variant,
+   :func:`search_reach`) and on the right by its most negative one, so every pixel of
+   the core finds its match (I_left(y, x) ~ I_right(y, x - d)) inside the window. Left and
+   right are cropped to the same window, so disparities are unchanged; at an image border
+   the window shifts inwards and keeps its width. For a learned method the window's first
+   row and column are moved back to the network's sampling grid (:func:`window_alignment`).
 3. **The ranges.** A tile's range is :func:`cade_cli.range.confident_bounds` of the coarse
    estimates over its core and collar, widened by :func:`cade_cli.range.range_margin`, and
    kept within the range asked for; a tile with too few coarse estimates searches that
@@ -28,9 +31,12 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    its disparity, validity and confidence is copied into the output, the collar dropped.
 
 When the whole pair fits the budget, :func:`estimate_disparity_tiled` is exactly
-:func:`~cade_cli.stereo.estimate_disparity`. Tiles differ from the untiled map only where
-a matcher's context (SGM paths, the network's receptive field, the LR check, the range)
-reaches past a window; ``benchmarks/tiling.py`` measures it (docs/scale.md, "Tiling").
+:func:`~cade_cli.stereo.estimate_disparity`. Tiles differ from the untiled map where a
+matcher's context (SGM paths, the network's receptive field, the LR check, the range)
+reaches past a window, and for ``cade`` where its refinement's OpenCV SGBM (3-way mode)
+restarts its top-down path: at the top of each of the 4 row stripes it cuts every image
+into, so the untiled map's rows depend on the image's height, which no window reproduces;
+``benchmarks/tiling.py`` measures it (docs/scale.md, "Tiling").
 """
 
 from __future__ import annotations
@@ -46,7 +52,8 @@ from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult, get_matcher
 from cade_cli.matching.base import check_pair
 from cade_cli.matching.learned import LearnedPipeline
-from cade_cli.matching.network import STRIP_PIXELS
+from cade_cli.matching.network import STRIP_PIXELS, choose_variant
+from cade_cli.matching.refinement import SIGN_STEP
 from cade_cli.range import coarse_match, confident_bounds, range_margin
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, MEMORY_LIMIT_BYTES, estimate_disparity
 
@@ -66,8 +73,12 @@ variant (about 1 GB at 128 levels and 2.3 GB at 256 on a full strip of
 MEMORY_SHARE = 0.5
 """Default budget: this share of the memory available (``MemAvailable``)."""
 COLLAR = 32
-"""Px added on every side of a core and dropped after matching: the context a matcher's
-windows, SGM paths and checks use near the core's edge."""
+"""Px added on every side of a core and dropped after matching: the context a classical
+matcher's windows, SGM paths and checks use near the core's edge."""
+LEARNED_COLLAR = 64
+"""The collar of a learned method, px: one pixel of either input moves the CADE
+network's disparity by more than 0.01 px up to about 40 rows and 50 columns away (by 1e-4
+px up to about 70; Adirondack, models/cade-v4), beyond :data:`COLLAR`."""
 MIN_CORE = 32
 """Smallest core side tried, px."""
 SIDE_STEP = 0.75
@@ -126,12 +137,60 @@ def matching_memory_bytes(method: str, width: int, height: int, disparities: int
 
 
 @functools.lru_cache(maxsize=8)
+def learned_kernel(method: str, model: str | None = None) -> LearnedPipeline | None:
+    """``method``'s :class:`~cade_cli.matching.learned.LearnedPipeline` (with ``model``'s
+    network), None for a classical matcher."""
+    kernel = get_matcher(method, model=model).kernel
+    return kernel if isinstance(kernel, LearnedPipeline) else None
+
+
 def widest_network_levels(method: str, model: str | None = None) -> int:
     """Levels of the widest variant of ``method``'s network (0 for a classical matcher)."""
-    kernel = get_matcher(method, model=model).kernel
-    if not isinstance(kernel, LearnedPipeline):
-        return 0
-    return max(variant.levels for variant in kernel.network.card().variants)
+    kernel = learned_kernel(method, model)
+    return 0 if kernel is None else max(variant.levels for variant in kernel.network.card().variants)
+
+
+def method_collar(method: str, model: str | None = None) -> int:
+    """The collar ``method``'s windows get, px: :data:`LEARNED_COLLAR` for a learned
+    method, :data:`COLLAR` for the classical ones."""
+    return COLLAR if learned_kernel(method, model) is None else LEARNED_COLLAR
+
+
+def window_alignment(method: str, span: int, model: str | None = None) -> int:
+    """Px that a window's first row and column must be multiples of for ``method``, searching
+    ``span`` px (max - min), to sample the image on the grid it uses when matching the pair
+    whole; 1 for a classical matcher.
+
+    A learned method's network samples its input on a grid whose pitch is the card's
+    divisor times the pyramid factor of the search (features at 1/4 resolution, padded to
+    the divisor; a downscaled pass for wide ranges): a window starting off that grid is
+    sampled at other points, and its map differs everywhere (on Adirondack 95-97 % of the
+    pixels by more than 0.01 px for a window 1, 2 or 4 px off; 1 % for one 8 px off). Its
+    refinement reads every :data:`~cade_cli.matching.refinement.SIGN_STEP`-th row and
+    column to judge contrast inversion. Seeded tiles search at most ``span``, so their
+    pyramid factor divides this one's."""
+    kernel = learned_kernel(method, model)
+    if kernel is None:
+        return 1
+    card = kernel.network.card()
+    pitch = card.divisor * choose_variant(card, span)[1]
+    return pitch if kernel.refinement is None else math.lcm(pitch, SIGN_STEP)
+
+
+def search_reach(method: str, disparity_range: DisparityRange, model: str | None = None) -> int:
+    """The largest disparity (px) whose cost ``method`` computes when asked for
+    ``disparity_range``: its maximum for a classical matcher; for a learned one the top
+    level of the network variant it runs (the minimum plus the pyramid factor times
+    ``levels - 1``), usually above it. The network aggregates all its levels, so a window
+    must hold that many columns left of a pixel for its estimate to be the untiled one (on
+    Playtable, range [0, 72], variant of 96 levels, 128 px cores: 1.9 % of the network's
+    pixels 8-32 px from a seam move by more than 0.01 px with windows widened by 72 px,
+    0.02 % with 95 px)."""
+    kernel = learned_kernel(method, model)
+    if kernel is None:
+        return disparity_range.maximum
+    variant, factor = choose_variant(kernel.network.card(), disparity_range.span)
+    return max(disparity_range.maximum, disparity_range.minimum + factor * (variant.levels - 1))
 
 
 def tile_memory_bytes(method: str, width: int, height: int, disparities: int, *, model: str | None = None) -> int:
@@ -218,16 +277,19 @@ def seeded_range(coarse, rows: tuple[int, int], columns: tuple[int, int], whole:
 
 
 def make_tile(rows: tuple[int, int], columns: tuple[int, int], shape: tuple[int, int], chosen: DisparityRange,
-              seeded: bool, collar: int) -> Tile:
-    """The tile of a core: its window (collar, plus the range on the left and right) and
-    the range, kept within what the window can hold."""
+              seeded: bool, collar: int, alignment: int = 1, searched: int | None = None) -> Tile:
+    """The tile of a core: its window (collar, plus the range on the left and right; on the
+    left up to ``searched``, :func:`search_reach`, when the matcher looks further than the
+    range's maximum; its first row and column moved back to multiples of ``alignment``,
+    :func:`window_alignment`) and the range, kept within what the window can hold."""
     height, width = shape
-    window_rows = (max(0, rows[0] - collar), min(height, rows[1] + collar))
+    left = max(chosen.maximum if searched is None else searched, 0)
+    window_rows = (max(0, rows[0] - collar) // alignment * alignment, min(height, rows[1] + collar))
     # the core, the range on either side and the collars; shifted inwards at an image border,
     # so a window keeps its width (the matchers need columns beyond the widest disparity)
-    need = columns[1] - columns[0] + max(chosen.maximum, 0) - min(chosen.minimum, 0) + 2 * collar
-    start = max(0, min(columns[0] - max(chosen.maximum, 0) - collar, width - need))
-    window_columns = (start, min(width, start + need))
+    need = columns[1] - columns[0] + left - min(chosen.minimum, 0) + 2 * collar
+    start = max(0, min(columns[0] - left - collar, width - need))
+    window_columns = (start // alignment * alignment, min(width, start + need))
     reach = window_columns[1] - window_columns[0] - 1  # |d| must stay below the window's width
     minimum, maximum = max(chosen.minimum, -reach), min(chosen.maximum, reach)
     maximum = max(maximum, 1, minimum + 1)
@@ -242,7 +304,7 @@ def plan_tiles(
     min_disp: int = 0,
     max_disp: int,
     memory_limit: int,
-    collar: int = COLLAR,
+    collar: int | None = None,
     core: int | None = None,
     seed: bool = True,
     model: str | None = None,
@@ -254,7 +316,7 @@ def plan_tiles(
         method: a registered matcher.
         min_disp, max_disp: the inclusive range asked for, px.
         memory_limit: budget, bytes, for the whole process.
-        collar: px of context around each core.
+        collar: px of context around each core; None: :func:`method_collar`.
         core: force this core side (px) and tile even when the pair fits; None: the
             largest that fits the budget.
         seed: seed each tile's range from the coarse pass; False: every tile searches the
@@ -275,6 +337,8 @@ def plan_tiles(
     if core is None and BASE_BYTES + untiled <= memory_limit and volume <= MEMORY_LIMIT_BYTES:
         return TilePlan((), max(width, height), 0, memory_limit, untiled)
     budget = memory_limit - BASE_BYTES - IMAGE_BYTES * width * height
+    collar = method_collar(method, model) if collar is None else collar
+    alignment = window_alignment(method, whole.span, model)
     coarse = None  # none, or too small or too blank to seed: every tile searches the whole range
     if seed:
         try:
@@ -292,7 +356,9 @@ def plan_tiles(
                 rows, columns = (top, min(height, top + side)), (first, min(width, first + side))
                 context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + collar))
                 seeded = None if coarse is None else seeded_range(coarse, *context, whole)
-                tiles.append(make_tile(rows, columns, (height, width), seeded or whole, seeded is not None, collar))
+                chosen = seeded or whole
+                tiles.append(make_tile(rows, columns, (height, width), chosen, seeded is not None, collar,
+                                       alignment, search_reach(method, chosen, model)))
         peak = max(tile_memory_bytes(method, *tile.window_size, tile.range.count, model=model) for tile in tiles)
         volume = max(volume_bytes * math.prod(tile.window_size) * tile.range.count for tile in tiles)
         if peak <= budget and volume <= MEMORY_LIMIT_BYTES:
@@ -332,7 +398,7 @@ def estimate_disparity_tiled(
     memory_limit: int,
     preprocess: str = DEFAULT_PREPROCESS,
     model: str | None = None,
-    collar: int = COLLAR,
+    collar: int | None = None,
     core: int | None = None,
     seed: bool = True,
     plan: TilePlan | None = None,
@@ -379,5 +445,6 @@ def estimate_disparity_tiled(
     return DisparityResult(disparity, valid, confidence), plan
 
 
-__all__ = ["TilePlan", "Tile", "estimate_disparity_tiled", "matching_memory_bytes",
-           "parse_memory", "plan_tiles", "tile_memory_bytes", "default_memory_limit", "seam_distance"]
+__all__ = ["TilePlan", "Tile", "estimate_disparity_tiled", "matching_memory_bytes", "method_collar",
+           "parse_memory", "plan_tiles", "search_reach", "tile_memory_bytes", "default_memory_limit",
+           "seam_distance", "window_alignment"]

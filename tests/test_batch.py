@@ -405,11 +405,52 @@ def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras,
     assert code == 0 and "2 done, 0 already finished" in stdout
 
 
+def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_it(rig_cameras, capsys):
+    """--max-disp auto and a --memory-limit that tiles, with a rig: each pair's range is its
+    own, announced and logged as without a rig, and the bytes are `cade disparity --rig`'s."""
+    from cade_cli.tiling import BASE_BYTES
+    from test_rig import plane_disparity
+
+    root = rig_cameras
+    limit = f"{(BASE_BYTES + 40 * 2**20) // 2**10}KB"  # the 480x360 rectified pair: tens of tiles
+    rig_options = ["--rig", root / "rig.json", "-m", "sgbm", "--max-disp", "auto", "--memory-limit", limit]
+    args = ["batch", "--left", root / "cam0" / "*.png", "--right", root / "cam1" / "*.png", "-o", root / "out",
+            *rig_options, "--depth"]
+    code, stdout, batch_stderr = run_cade(args, capsys)
+    assert code == 0 and "2 done" in stdout, batch_stderr
+    assert "matched as tiles" in batch_stderr
+    entries = {Path(entry["output"]).stem: entry for entry in log_of(root / "out")["pairs"]}
+    single = root / "single"
+    single.mkdir()
+    for index, depth in enumerate((1.2, 1.5)):
+        name = f"{index:04d}"
+        entry = entries[name]
+        low, high = entry["range"]
+        assert low == 0 and plane_disparity(depth) + 2 <= high <= plane_disparity(depth) + 20, entry
+        assert entry["range_note"].startswith(f"--max-disp auto: searching [0, {high}] px")
+        assert f"note: {root / 'out' / name}.pfm: --max-disp auto: searching [0, {high}] px" in batch_stderr
+        assert entry["tiles"] > 1
+        record = json.loads((root / "out" / f"{name}.pfm.cade.json").read_text())
+        assert record["range"] == [low, high] and record["tiles"] == entry["tiles"]
+        code, _, stderr = run_cade(["disparity", root / "cam0" / f"{name}.png", root / "cam1" / f"{name}.png", "-o",
+                                    single / f"{name}.pfm", *rig_options, "--depth", single / f"{name}_depth.tif"],
+                                   capsys)
+        assert code == 0 and f"searching [0, {high}] px" in stderr and " tiles of " in stderr, stderr
+        for suffix in (".pfm", "_depth.tif"):
+            assert (root / "out" / f"{name}{suffix}").read_bytes() == (single / f"{name}{suffix}").read_bytes(), suffix
+        assert np.nanmedian(read_disparity(single / f"{name}.pfm")) == pytest.approx(plane_disparity(depth), abs=1.0)
+    # the --jobs plan: a rig's pair that does not fit the limit is tiled within it, so the limit is its plan
+    from cade_cli.batch import job_memory_bytes
+
+    options = PairOptions(method="sgbm", max_disp="auto", rig=str(root / "rig.json"),
+                          memory_limit=BASE_BYTES + 40 * 2**20)
+    pair = Pair(root / "cam0" / "0000.png", root / "cam1" / "0000.png", root / "plan.pfm", options)
+    assert job_memory_bytes([pair]) == (480, 360, BASE_BYTES + 40 * 2**20)
+
+
 RIG_BATCH_ERRORS = {
     "depth without a rig": (["--depth"], "--depth needs --rig"),
     "fix-vertical without a rig": (["--fix-vertical"], "--fix-vertical needs --rig"),
-    "memory limit with a rig": (["--rig", "rig.json", "--memory-limit", "1GB"], "--memory-limit does not work with --rig"),
-    "auto with a rig": (["--rig", "rig.json", "--max-disp", "auto"], "auto do not work with --rig"),
     "missing rig": (["--rig", "missing.json"], "does not exist"),
     "unknown camera": (["--rig", "rig.json", "--camera", "nir"], "no camera 'nir'"),
     "bad memory limit": (["--memory-limit", "lots"], "--memory-limit 'lots'"),

@@ -335,13 +335,16 @@ def test_disparity_with_a_rig_gives_the_plane_depth(rig_scene, tmp_path, capsys)
     assert np.all(vertices["r"] == vertices["b"]) and vertices["g"].std() > 10  # grey from the textured band
 
 
+def mirrored_rig() -> Rig:
+    """The synthetic rig seen from its right camera: the reference is the RIGHT camera, the other one left of it."""
+    return Rig("right", (Camera("right", "bp900", SIZE, K=K_RIGHT, dist=DIST_RIGHT, R=np.eye(3), t=np.zeros(3)),
+                         Camera("left", "bp400", SIZE, K=K_LEFT, dist=DIST_LEFT, R=R_RIGHT.T, t=-R_RIGHT.T @ T_RIGHT)))
+
+
 def test_disparity_with_the_other_camera_left_of_the_reference(rig_scene, tmp_path, capsys):
     """The reference is the RIGHT camera: the pair is matched mirrored, disparity stays >= 0."""
     _, left, right = rig_scene
-    mirrored = Rig("right", (Camera("right", "bp900", SIZE, K=K_RIGHT, dist=DIST_RIGHT, R=np.eye(3), t=np.zeros(3)),
-                             Camera("left", "bp400", SIZE, K=K_LEFT, dist=DIST_LEFT, R=R_RIGHT.T,
-                                    t=-R_RIGHT.T @ T_RIGHT)))
-    save_rig(mirrored, tmp_path / "mirrored.json")
+    save_rig(mirrored_rig(), tmp_path / "mirrored.json")
     out, depth = tmp_path / "d.pfm", tmp_path / "z.tif"
     code, _, stderr = run_cade(["disparity", "--rig", tmp_path / "mirrored.json", right, left, "-o", out, "--depth",
                                 depth, "--max-disp", 64, "-m", "sgbm", "--fill", "none"], capsys)
@@ -349,6 +352,8 @@ def test_disparity_with_the_other_camera_left_of_the_reference(rig_scene, tmp_pa
     plane_depth_in_right_camera = (R_RIGHT @ np.array([0, 0, 1.2]) + T_RIGHT)[2]
     assert np.nanmedian(tifffile.imread(depth)) == pytest.approx(plane_depth_in_right_camera, rel=0.03)
     assert np.nanmedian(read_disparity(out)) > 30
+    # the self-check matches features on the mirrored geometry too (x_right = x_left + d)
+    assert "rectification self-check: offset" in stderr and "feature matches" not in stderr
 
 
 def test_a_right_camera_of_another_resolution_is_resampled_through_the_rig(tmp_path, rng, capsys):
@@ -385,6 +390,71 @@ def test_disparity_with_a_rig_in_the_original_frame(rig_scene, tmp_path, capsys)
     assert np.isfinite(disparity).mean() > 0.6  # alpha = 0: the rectified view leaves out the edges
     assert np.isfinite(disparity[100:260, 120:360]).all()
     assert "left as is (--fix-vertical)" in stderr  # a perfect rig: nothing to correct
+
+
+def plane_disparity(depth: float = 1.2) -> float:
+    """Rectified disparity (px) of the scene plane ``depth`` metres in front of the synthetic rig."""
+    rectification = synthetic_rig().rectification
+    return rectification.focal * rectification.baseline / depth
+
+
+def searched_range(stdout: str) -> tuple[int, int]:
+    """The ``searched [a, b]`` range of a `cade disparity` summary line."""
+    low, high = stdout.split("searched [")[1].split("]")[0].split(", ")
+    return int(low), int(high)
+
+
+def test_disparity_with_a_rig_and_max_disp_auto_covers_the_plane(rig_scene, tmp_path, capsys):
+    """The range is estimated on the rectified pair, in rectified px, and announced as without a rig."""
+    rig, left, right = rig_scene
+    out = tmp_path / "d.pfm"
+    code, stdout, stderr = run_cade(["disparity", "--rig", rig, left, right, "-o", out, "--max-disp", "auto", "-m",
+                                     "sgbm", "--fill", "none"], capsys)
+    assert code == 0, stderr
+    assert "note: --max-disp auto: searching [0, " in stderr
+    low, high = searched_range(stdout)
+    assert low == 0 and plane_disparity() + 2 <= high <= plane_disparity() + 20  # the plane, and a margin
+    assert f"searching [{low}, {high}] px" in stderr
+    assert np.nanmedian(read_disparity(out)) == pytest.approx(plane_disparity(), abs=1.0)
+
+
+def test_both_bounds_auto_with_the_other_camera_left_of_the_reference(rig_scene, tmp_path, capsys):
+    """A mirrored rig: the range is estimated on the pair as it is matched (mirrored), so it
+    comes out positive around the plane, as a range given in rectified px would be."""
+    _, left, right = rig_scene
+    save_rig(mirrored_rig(), tmp_path / "mirrored.json")
+    out = tmp_path / "d.pfm"
+    code, stdout, stderr = run_cade(["disparity", "--rig", tmp_path / "mirrored.json", right, left, "-o", out,
+                                     "--min-disp", "auto", "--max-disp", "auto", "-m", "sgbm", "--fill", "none"],
+                                    capsys)
+    assert code == 0, stderr
+    assert "note: --min-disp and --max-disp auto: searching [" in stderr
+    low, high = searched_range(stdout)
+    found = np.nanmedian(read_disparity(out))
+    assert 0 < low < found < high < 2 * found
+    assert found == pytest.approx(plane_disparity(), abs=1.5)  # the plane, a little closer to the right camera
+
+
+def test_disparity_with_a_rig_and_a_memory_limit_matches_tiles_as_the_whole_pair(rig_scene, tmp_path, capsys):
+    """A --memory-limit the rectified pair does not fit: matched as tiles, which agree with the whole match."""
+    from cade_cli.tiling import BASE_BYTES
+
+    rig, left, right = rig_scene
+    args = ["disparity", "--rig", rig, left, right, "--max-disp", 64, "-m", "sgbm", "--fill", "none", "--depth"]
+    code, _, stderr = run_cade([*args, tmp_path / "whole.tif", "-o", tmp_path / "whole.pfm"], capsys)
+    assert code == 0 and " tiles of " not in stderr, stderr
+    limit = f"{(BASE_BYTES + 40 * 2**20) // 2**10}KB"  # 480x360 over 65 disparities: about 20 tiles
+    code, stdout, stderr = run_cade([*args, tmp_path / "tiled.tif", "-o", tmp_path / "tiled.pfm", "--memory-limit",
+                                     limit], capsys)
+    assert code == 0, stderr
+    assert "note: the pair does not fit --memory-limit" in stderr and " tiles of " in stderr
+    assert "searched [0, 64]" in stdout
+    whole, tiled = read_disparity(tmp_path / "whole.pfm"), read_disparity(tmp_path / "tiled.pfm")
+    both = np.isfinite(whole) & np.isfinite(tiled)
+    assert both.mean() > 0.75 and np.isfinite(tiled).mean() >= 0.95 * np.isfinite(whole).mean()
+    assert np.mean(np.abs(tiled - whole)[both] <= 1.0) > 0.99
+    assert np.nanmedian(tiled) == pytest.approx(plane_disparity(), abs=1.0)
+    assert np.nanmedian(tifffile.imread(tmp_path / "tiled.tif")) == pytest.approx(1.2, rel=0.02)
 
 
 def test_rectify_command_writes_the_pair_and_the_epipolar_picture(rig_scene, tmp_path, capsys):

@@ -11,12 +11,15 @@ from cade_cli.stereo import estimate_disparity
 from cade_cli.tiling import (
     BASE_BYTES,
     IMAGE_BYTES,
+    LEARNED_COLLAR,
     estimate_disparity_tiled,
     matching_memory_bytes,
+    method_collar,
     tile_memory_bytes,
     parse_memory,
     plan_tiles,
     seam_distance,
+    window_alignment,
 )
 from cli_runner import run_cade, write_png16
 from synthetic import render_pair
@@ -56,6 +59,26 @@ def test_tiled_map_equals_the_untiled_one_away_from_seams(pair, method):
     assert np.median(error) < 0.25 and np.mean(error > 1) < 0.02
     assert tiled.valid[pair.reliable].mean() >= whole.valid[pair.reliable].mean() - 0.01
     assert tiled.confidence is not None and np.all(tiled.confidence[~tiled.valid] == 0)
+
+
+@pytest.mark.parametrize("method, agreeing", [("cade-network", 0.999), ("cade", 0.99)])
+def test_learned_tiles_equal_the_untiled_map_away_from_seams(pair, method, agreeing):
+    """100 px cores: windows that start off the network's 8 px grid. Aligned and with the
+    64 px collar, the network's tiles are its untiled map (all pixels measured equal); the
+    refinement's OpenCV SGBM restarts paths at stripes that depend on the window's height,
+    so ``cade`` keeps a residue (99.6 % measured). Before the 8 px grid and the 64 px collar:
+    28.6 % (``cade-network``) and 97.2 % (``cade``)."""
+    whole = estimate_disparity(pair.left, pair.right, method=method, max_disp=MAX_DISP)
+    tiled, plan = estimate_disparity_tiled(pair.left, pair.right, method=method, max_disp=MAX_DISP,
+                                           memory_limit=2**30, core=100, seed=False)
+    assert plan.tiled and len(plan.tiles) == 3 * 4 and plan.collar == method_collar(method) == LEARNED_COLLAR
+    alignment = window_alignment(method, MAX_DISP)
+    assert alignment == 8
+    assert all(tile.window_rows[0] % alignment == tile.window_columns[0] % alignment == 0 for tile in plan.tiles)
+    away = seam_distance(plan, pair.left.shape) >= 16
+    both = whole.valid & tiled.valid
+    assert (both & away).sum() > 0.4 * both.size
+    assert np.mean(np.abs(whole.disparity - tiled.disparity)[both & away] <= 0.01) > agreeing
 
 
 def test_seeded_ranges_cover_the_truth_and_narrow_the_search(pair):
@@ -132,8 +155,9 @@ def test_a_learned_method_plans_its_network_strip_and_its_tiles_fit(pair):
     assert tile_memory_bytes("cade", width, height, 65) > matching_memory_bytes("cade", width, height, 65)
     assert tile_memory_bytes("sgbm", width, height, 65) == matching_memory_bytes("sgbm", width, height, 65)
     untiled = tile_memory_bytes("cade", width, height, MAX_DISP + 1)
-    limit = BASE_BYTES + IMAGE_BYTES * width * height + untiled // 3
+    # half: with its 64 px collar, even a 32 px core's window is over a third of this small pair
+    limit = BASE_BYTES + IMAGE_BYTES * width * height + untiled // 2
     plan = plan_tiles(pair.left, pair.right, method="cade", max_disp=MAX_DISP, memory_limit=limit)
     assert plan.tiled
     for tile in plan.tiles:
-        assert tile_memory_bytes("cade", *tile.window_size, tile.range.count) <= untiled // 3
+        assert tile_memory_bytes("cade", *tile.window_size, tile.range.count) <= untiled // 2

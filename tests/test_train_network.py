@@ -107,6 +107,25 @@ def test_onnx_agrees_with_torch_on_odd_sizes(tmp_path: Path):
     assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3
 
 
+def test_a_separable_aggregation_slides_along_disparity_and_exports(tmp_path: Path):
+    from cade_cli.train.export import export_onnx
+
+    net = CadeNet(levels=24, channels3d=4, aggregation="separable").eval()
+    kernels = [m.kernel_size for m in net.aggregation.modules() if isinstance(m, torch.nn.Conv3d)]
+    assert kernels and all(sorted(k) != [3, 3, 3] for k in kernels) and (3, 1, 1) in kernels and (1, 3, 3) in kernels
+    # no weight depends on the range: the state dict of one width loads into another
+    wide = CadeNet(levels=48, channels3d=4, aggregation="separable").eval()
+    wide.load_state_dict(net.state_dict())
+    left = torch.rand(1, 1, 32, 64)
+    right = torch.roll(left, -2, dims=-1)
+    assert wide(left, right)["disparity"].shape == (1, 1, 32, 64)
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path)
+    assert verify_onnx(net, path, sizes=((40, 56),)) < 1e-3
+    with pytest.raises(ValueError, match="aggregation"):
+        CadeNet(levels=24, aggregation="2d")
+
+
 @pytest.mark.parametrize("output", ["coarse", "disparity"])
 def test_export_output_picks_the_map_and_leaves_the_refinement_net_out_of_coarse_graphs(tmp_path: Path, output):
     import onnx
@@ -177,7 +196,8 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
     tuned = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=32, width=64,
                         levels=16, workers=0, init=str(tmp_path / "legacy.pt"))
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
-    assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8, "census": False}
+    assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8, "census": False,
+                              "aggregation": "3d"}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
 

@@ -51,6 +51,9 @@ def fit(
     channels3d: Annotated[int, typer.Option(min=1, help="Channels of the 3D aggregation (8: cade-v4/v6).")] = 8,
     census: Annotated[bool, typer.Option(help="A census cost volume of the input bands beside the learned "
                                          "correlation, into the 3D aggregation.")] = False,
+    aggregation: Annotated[str, typer.Option(help="3d (3x3x3 kernels; every shipped model) or separable (a 2D "
+                                             "kernel per disparity slice, then a 1D one along disparity).")]
+    = "3d",
     init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
                                                "(a wider 3D part starts fresh).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
@@ -67,6 +70,10 @@ def fit(
     from cade_cli.train.fit import TrainConfig, train
     from cade_cli.train.pairs import TRAINING_MODES
 
+    from cade_cli.train.model import AGGREGATIONS
+
+    if aggregation not in AGGREGATIONS:
+        raise typer.BadParameter(f"must be one of {', '.join(AGGREGATIONS)}", param_hint="--aggregation")
     if training_mode not in TRAINING_MODES:
         raise typer.BadParameter(f"must be one of {', '.join(TRAINING_MODES)}", param_hint="--training-mode")
 
@@ -77,7 +84,7 @@ def fit(
                          init=str(init) if init else None, warmup=warmup, padding=padding,
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
-                         channels3d=channels3d, init_partial=init_partial, census=census,
+                         channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          training_mode=training_mode, time_budget_s=time_budget)
     train(config, resume=resume)
 

@@ -58,6 +58,9 @@ class TrainConfig:
     """CadeNet's first 3D kernel size; cade-v1 … v3 were trained with 3."""
     channels3d: int = 8
     """Channels of CadeNet's 3D aggregation (8 in cade-v1 … v6; 16 for the accurate tier)."""
+    aggregation: str = "3d"
+    """CadeNet's aggregation (:data:`~cade_cli.train.model.AGGREGATIONS`): 3x3x3 kernels
+    (every shipped model) or separable 2D + 1D ones (the Accuracy II lever)."""
     census: bool = False
     """Feed CadeNet's aggregation a census cost volume beside the correlation (the
     Accuracy II lever; with ``init`` and ``init_partial`` it starts as the checkpoint)."""

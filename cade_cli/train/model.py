@@ -37,8 +37,20 @@ def conv2d(cin: int, cout: int, *, stride: int = 1, dilation: int = 1, act: bool
     return nn.Sequential(*layers)
 
 
-def conv3d(cin: int, cout: int, *, stride: int = 1, act: bool = True, kernel: int = 3) -> nn.Sequential:
-    layers: list[nn.Module] = [nn.Conv3d(cin, cout, kernel, stride, padding=kernel // 2, bias=not act)]
+def conv3d(cin: int, cout: int, *, stride: int = 1, act: bool = True, kernel: int = 3,
+           separable: bool = False) -> nn.Sequential:
+    """A 3D convolution over (disparity, y, x), then batch norm and LeakyReLU (``act``).
+
+    ``separable`` (a ``kernel`` of 3 only): a 2D 1x3x3 convolution over each disparity
+    slice (shared weights), then a 3x1x1 one along disparity; stride applies to both
+    parts' own axes. 12 taps per channel pair instead of 27."""
+    if separable and kernel == 3:
+        layers: list[nn.Module] = [
+            nn.Conv3d(cin, cout, (1, 3, 3), (1, stride, stride), padding=(0, 1, 1), bias=False),
+            nn.Conv3d(cout, cout, (3, 1, 1), (stride, 1, 1), padding=(1, 0, 0), bias=not act),
+        ]
+    else:
+        layers = [nn.Conv3d(cin, cout, kernel, stride, padding=kernel // 2, bias=not act)]
     if act:
         layers += [nn.BatchNorm3d(cout), nn.LeakyReLU(0.1, inplace=True)]
     return nn.Sequential(*layers)
@@ -117,16 +129,28 @@ def census_cost(left: torch.Tensor, right: torch.Tensor, levels: int) -> torch.T
     return torch.stack(slices, dim=2)
 
 
+AGGREGATIONS = ("3d", "separable")
+"""How :class:`Aggregation` convolves the cost volume: full 3x3x3 kernels (cade-v1 … v6),
+or each split into a 2D spatial kernel per disparity slice and a 1D kernel along
+disparity (the 2D-aggregation lever of Accuracy II; still range-independent weights)."""
+
+
 class Aggregation(nn.Module):
     """3D CNN over the cost volume, one hourglass level, -> logits (B, D, h, w)."""
 
-    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 1, extra_inputs: int = 0):
+    def __init__(self, groups: int = 8, channels: int = 8, entry_kernel: int = 1, extra_inputs: int = 0,
+                 kind: str = "3d"):
         super().__init__()
-        self.entry = nn.Sequential(conv3d(groups + extra_inputs, channels, kernel=entry_kernel), conv3d(channels, channels))
-        self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2), conv3d(2 * channels, 2 * channels))
+        if kind not in AGGREGATIONS:
+            raise ValueError(f"aggregation must be one of {', '.join(AGGREGATIONS)}, got {kind!r}")
+        sep = kind == "separable"
+        self.entry = nn.Sequential(conv3d(groups + extra_inputs, channels, kernel=entry_kernel, separable=sep),
+                                   conv3d(channels, channels, separable=sep))
+        self.down = nn.Sequential(conv3d(channels, 2 * channels, stride=2, separable=sep),
+                                  conv3d(2 * channels, 2 * channels, separable=sep))
         self.up = nn.Sequential(nn.ConvTranspose3d(2 * channels, channels, 2, stride=2, bias=False),
                                 nn.BatchNorm3d(channels))
-        self.exit = nn.Sequential(conv3d(channels, channels), conv3d(channels, 1, act=False))
+        self.exit = nn.Sequential(conv3d(channels, channels, separable=sep), conv3d(channels, 1, act=False, separable=sep))
 
     def forward(self, cost: torch.Tensor) -> torch.Tensor:
         x = self.entry(cost)
@@ -179,19 +203,23 @@ class CadeNet(nn.Module):
             (:func:`census_cost`) beside the learned correlation: a cost that no
             monotonic change of intensity alters, so identical on rendered and real data
             (the Accuracy II lever; models/README.md says what it measured).
+        aggregation: ``"3d"`` (every shipped model) or ``"separable"``
+            (:data:`AGGREGATIONS`; the 2D-aggregation lever).
     """
 
     def __init__(self, levels: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
-                 refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1, census: bool = False):
+                 refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1, census: bool = False,
+                 aggregation: str = "3d"):
         super().__init__()
         if levels % DIVISOR:
             raise ValueError(f"levels must be a multiple of {DIVISOR}, got {levels}")
         self.levels, self.groups = levels, groups
         self.coarse_levels = levels // 4
-        self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d, "census": census}
+        self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d, "census": census,
+                       "aggregation": aggregation}
         self.census = census
         self.features = FeatureNet(features, padding)
-        self.aggregation = Aggregation(groups, channels3d, entry_kernel, extra_inputs=int(census))
+        self.aggregation = Aggregation(groups, channels3d, entry_kernel, extra_inputs=int(census), kind=aggregation)
         self.refinement = Refinement(refine_channels, padding)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
@@ -241,7 +269,7 @@ class ExportWrapper(nn.Module):
         return out[self.output], out["uncertainty"]
 
 
-LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "census": False}
+LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "census": False, "aggregation": "3d"}
 """The design of checkpoints whose config predates the ``padding``/``entry_kernel`` keys (cade-v1 … v3)."""
 
 
