@@ -27,7 +27,7 @@ window; a single 16-bit step inside a 3x3 window gives about 5e-6. A threshold
 relative to the range keeps the transform exactly invariant under x -> a*x + b."""
 
 
-def color_agnostic(image: np.ndarray, *, window: int = 3) -> np.ndarray:
+def color_agnostic(image: np.ndarray, *, window: int = 3, floor: float = 0.0) -> np.ndarray:
     """Color agnostic transform of one band (METHOD.md section 3).
 
     Steps: ``window`` x ``window`` median filter; local mean ``mu`` and population
@@ -36,10 +36,17 @@ def color_agnostic(image: np.ndarray, *, window: int = 3) -> np.ndarray:
     ``x_a = clip(0.5 + 0.5 * x_s, 0, 1)``; ``x_a = 0`` where the window is flat
     (see :data:`FLAT_TOLERANCE`). Borders are replicated, as in the authors' code.
 
+    With ``floor`` > 0 (the ``cade-floor`` network input, not the paper's transform),
+    ``sigma`` becomes ``sqrt(sigma^2 + floor^2)`` on the band scaled to a range of 1: a
+    window whose contrast is far below ``floor`` (noise and 8-bit steps on a plain wall)
+    stays near 0.5 instead of being stretched to full contrast, and no window is flat.
+    Still invariant to ``a * image + b`` (the floor is relative to the band's range).
+
     Args:
         image: (H, W) array, any real dtype; intensity units do not matter because the
             result is invariant to ``a * image + b`` with ``a > 0``.
         window: odd window side in pixels, >= 3, used for the median and the statistics.
+        floor: contrast floor, in units of the band's range (0: the paper's transform).
 
     Returns:
         (H, W) float32 array in [0, 1]. The input is not modified.
@@ -70,6 +77,8 @@ def color_agnostic(image: np.ndarray, *, window: int = 3) -> np.ndarray:
     mean_sq = cv2.boxFilter(filtered * filtered, -1, box, normalize=True, borderType=cv2.BORDER_REPLICATE)
     sigma = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0))
 
+    if floor > 0:
+        sigma = np.sqrt(sigma * sigma + floor * floor)
     flat = sigma <= FLAT_TOLERANCE  # the image is already scaled to a range of 1
     standardized = (filtered - mean) / np.where(flat, 1.0, sigma)
     result = np.clip(0.5 + 0.5 * standardized, 0.0, 1.0)
@@ -135,10 +144,16 @@ def synthesize_bands(rgb: np.ndarray, rng: np.random.Generator) -> dict[str, np.
     return {name: np.clip(bands[name], 0.0, 1.0).astype(np.float32, copy=False) for name in BAND_NAMES}
 
 
-NETWORK_INPUTS: tuple[str, ...] = ("cade", "normalised")
+NETWORK_INPUTS: tuple[str, ...] = ("cade", "normalised", "cade-floor")
 """What a network's card says its inputs are: the color agnostic transform of each band
-(every shipped model), or each band rescaled to [0, 1] by its own minimum and maximum (the
-pristine and CSDL training modes of the training ablation, which see no transform)."""
+(every shipped model), each band rescaled to [0, 1] by its own minimum and maximum (the
+pristine and CSDL training modes of the training ablation, which see no transform), or
+the color agnostic transform with a contrast floor (:data:`CONTRAST_FLOOR`; an Accuracy II
+lever)."""
+CONTRAST_FLOOR = 0.02
+"""The ``cade-floor`` input's floor on the local standard deviation, in units of the band's
+range: about 5 grey levels of a band spanning 255. Chosen a priori (8-bit steps and sensor
+noise lie well below it, the texture the network matches mostly above it), not tuned."""
 
 
 def normalised(image: np.ndarray) -> np.ndarray:
@@ -160,4 +175,6 @@ def network_input(image: np.ndarray, kind: str = "cade") -> np.ndarray:
         return color_agnostic(image)
     if kind == "normalised":
         return normalised(image)
+    if kind == "cade-floor":
+        return color_agnostic(image, floor=CONTRAST_FLOOR)
     raise CadeError(f"unknown network input {kind!r}; choose one of {', '.join(NETWORK_INPUTS)}")

@@ -91,16 +91,39 @@ def test_a_card_says_how_its_network_takes_its_bands(tmp_path: Path, monkeypatch
         read_card(tmp_path / "odd.json")
 
 
-@pytest.mark.parametrize("mode, expected", [("pristine", "normalised"), ("cade", "cade")])
-def test_a_run_in_a_mode_exports_a_card_with_that_modes_input(tmp_path: Path, mode, expected):
+@pytest.mark.parametrize("mode, chosen, expected", [("pristine", None, "normalised"), ("cade", None, "cade"),
+                                                    ("cade", "cade-floor", "cade-floor")])
+def test_a_run_in_a_mode_exports_a_card_with_that_modes_input(tmp_path: Path, mode, chosen, expected):
     pytest.importorskip("torch")
     from cade_cli.train.export import export_checkpoint
     from cade_cli.train.fit import TrainConfig, train
 
     config = TrainConfig(out=str(tmp_path / mode), textures=[], steps=1, batch=1, height=32, width=64, levels=16,
-                         workers=0, validate_every=1, training_mode=mode)
+                         workers=0, validate_every=1, training_mode=mode, network_input=chosen)
     card = export_checkpoint(train(config), tmp_path / f"{mode}.onnx", tmp_path / f"{mode}.json", other_ranges=())
     assert card["input"] == expected and card["train_config"]["training_mode"] == mode
     assert read_card(tmp_path / f"{mode}.json").input == expected
     log = (tmp_path / mode / "log.csv").read_text()
     assert ",synthetic," in log  # validated on pairs of its own mode
+
+
+def test_the_contrast_floor_keeps_a_plain_wall_plain_and_the_transform_affine_invariant():
+    from cade_cli.spectral import network_input
+
+    rng = np.random.default_rng(0)
+    wall = 100 + rng.normal(0, 1, (48, 48))  # one grey level of sensor noise
+    texture = np.tile(np.linspace(0, 255, 48), (48, 1)) + rng.normal(0, 20, (48, 48))
+    band = np.concatenate([wall, texture], axis=1)
+    paper, floored = network_input(band, "cade"), network_input(band, "cade-floor")
+    assert paper[:, 4:44].std() > 0.25  # the paper's transform stretches the noise to full contrast
+    assert floored[:, 4:44].std() < 0.1 and abs(float(floored[:, 4:44].mean()) - 0.5) < 0.05
+    assert floored[:, 52:].std() > 0.15  # texture stays
+    np.testing.assert_allclose(network_input(3 * band + 7, "cade-floor"), floored, atol=1e-5)
+
+
+def test_a_network_input_is_chosen_in_the_cade_mode_only():
+    scene = _scene()
+    floored = training_pair(scene, np.random.default_rng(3), "cade", "cade-floor")
+    assert floored.bands == training_pair(scene, np.random.default_rng(3), "cade").bands
+    with pytest.raises(ValueError, match="cade training mode only"):
+        training_pair(scene, np.random.default_rng(3), "pristine", "cade-floor")

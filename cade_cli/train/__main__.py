@@ -61,6 +61,9 @@ def fit(
                                                "model), csdl (the 4 weighted-sum bands + noise, no transform) or "
                                                "pristine (the same R, G or B on both sides, no transform): the "
                                                "training ablation, docs/results.md.")] = "cade",
+    network_input: Annotated[str | None, typer.Option(help="With --training-mode cade: cade-floor (the color "
+                                                      "agnostic transform with a contrast floor; a lever) "
+                                                      "instead of the paper's transform.")] = None,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
 ) -> None:
@@ -74,6 +77,8 @@ def fit(
 
     if aggregation not in AGGREGATIONS:
         raise typer.BadParameter(f"must be one of {', '.join(AGGREGATIONS)}", param_hint="--aggregation")
+    if network_input is not None and (training_mode != "cade" or network_input not in ("cade", "cade-floor")):
+        raise typer.BadParameter("cade or cade-floor, with --training-mode cade", param_hint="--network-input")
     if training_mode not in TRAINING_MODES:
         raise typer.BadParameter(f"must be one of {', '.join(TRAINING_MODES)}", param_hint="--training-mode")
 
@@ -85,7 +90,7 @@ def fit(
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
-                         training_mode=training_mode, time_budget_s=time_budget)
+                         training_mode=training_mode, time_budget_s=time_budget, network_input=network_input)
     train(config, resume=resume)
 
 

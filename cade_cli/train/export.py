@@ -28,7 +28,9 @@ OUTPUT_NAMES = ["disparity", "uncertainty"]
 
 
 INPUT_TRANSFORMS = {"cade": "cade_cli.spectral.color_agnostic (window 3) on each band",
-                    "normalised": "cade_cli.spectral.normalised (min..max to [0, 1]) on each band"}
+                    "normalised": "cade_cli.spectral.normalised (min..max to [0, 1]) on each band",
+                    "cade-floor": "cade_cli.spectral.color_agnostic (window 3, contrast floor "
+                                  "cade_cli.spectral.CONTRAST_FLOOR) on each band"}
 """The card's ``input_transform`` text for each ``input`` (:data:`cade_cli.spectral.NETWORK_INPUTS`)."""
 
 
@@ -97,7 +99,7 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
     0 .. R - 1) to ``<stem>-R.onnx`` beside it; the card (:mod:`cade_cli.model_card`)
     lists them narrowest first."""
     net, state = load_checkpoint(checkpoint)
-    network_input = network_input_of(state["config"].get("training_mode", "cade"))
+    network_input = network_input_of(state["config"].get("training_mode", "cade"), state["config"].get("network_input"))
     targets = sorted([(net.levels, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
                                                     for r in set(other_ranges) if r != net.levels])
     variants, max_difference = [], 0.0
@@ -108,8 +110,9 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
         variants.append({"levels": levels, "file": path.name, "sha256": file_sha256(path)})
     return write_card(
         card_path, name=onnx_path.stem, divisor=DIVISOR, trained_levels=net.levels, variants=variants,
-        architecture= "CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> 3D hourglass "
-                        "-> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
+        architecture="CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> "
+                     + ("separable (2D + 1D) " if net.design["aggregation"] == "separable" else "3D ")
+                     + "hourglass -> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
                                             " -> bilinear x4 (refinement net trained, not exported)"),
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
         input=network_input, input_transform=INPUT_TRANSFORMS[network_input], opset=OPSET,

@@ -83,6 +83,9 @@ class TrainConfig:
     """How a scene becomes a training pair (:data:`~cade_cli.train.pairs.TRAINING_MODES`):
     ``cade`` (every shipped model), or the paper's comparison modes ``csdl`` and ``pristine``
     (the training ablation); the exported card's ``input`` follows from it."""
+    network_input: str | None = None
+    """The ``cade`` mode's transform, when not the paper's (``cade-floor``: the contrast-floor
+    lever, :data:`~cade_cli.spectral.CONTRAST_FLOOR`); None: the mode's own."""
     time_budget_s: float | None = None
     """Leave the loop, checkpointed, once this many seconds have passed in this process
     (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""
@@ -113,19 +116,19 @@ def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes 
     (no random draw for that when the share is 0, so earlier runs reproduce), else rendered."""
     if real is not None and rng.random() < config.real_share:
         scene = real.draw(rng, config.height, config.width, limit=config.levels - 1)
-        return mode_pair(scene, rng, config.training_mode)
+        return mode_pair(scene, rng, config.training_mode, config.network_input)
     return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned,
-                          mode=config.training_mode)
+                          mode=config.training_mode, kind=config.network_input)
 
 
 def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
-                   misaligned: float = 0.0, mode: str = "cade"):
+                   misaligned: float = 0.0, mode: str = "cade", kind: str | None = None):
     """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
     disparities below ``levels - 1`` px; a share ``misaligned`` of the pairs has a vertically
     misaligned right view."""
     scene = render_scene(rng, height, width, limit=levels - 1, textures=pool,
                          misalignment=Misalignment(share=misaligned))
-    return mode_pair(scene, rng, mode)
+    return mode_pair(scene, rng, mode, kind)
 
 
 def collate(pairs) -> dict[str, torch.Tensor]:
@@ -173,12 +176,12 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     from cade_cli.errors import CadeError
     from cade_cli.spectral import network_input
 
-    kind = network_input_of(config.training_mode)
+    kind = network_input_of(config.training_mode, config.network_input)
     sets = {}
     if synthetic:
         pool = TexturePool([Path(folder) for folder in config.textures])
         pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.levels,
-                                mode=config.training_mode) for i in range(24))
+                                mode=config.training_mode, kind=config.network_input) for i in range(24))
         sets["synthetic"] = [(pair.left, pair.right, pair.disparity) for pair in pairs]
     if config.data_dir and Path(config.data_dir).is_dir():
         from cade_cli.data import get_dataset

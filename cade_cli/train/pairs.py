@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cade_cli.spectral import BAND_NAMES, color_agnostic, normalised, synthesize_bands
+from cade_cli.spectral import BAND_NAMES, network_input, normalised, synthesize_bands
 from cade_cli.train.scenes import StereoScene
 
 
@@ -36,8 +36,12 @@ adds to each view of a pair independently."""
 PRISTINE_BANDS: tuple[str, ...] = ("R", "G", "B")
 
 
-def network_input_of(mode: str) -> str:
-    """The card's ``input`` (:data:`~cade_cli.spectral.NETWORK_INPUTS`) of a network trained in ``mode``."""
+def network_input_of(mode: str, chosen: str | None = None) -> str:
+    """The card's ``input`` (:data:`~cade_cli.spectral.NETWORK_INPUTS`) of a network trained
+    in ``mode``: ``chosen`` when given (``fit --network-input``; the ``cade`` mode only),
+    else the mode's own."""
+    if chosen:
+        return chosen
     return "cade" if mode == "cade" else "normalised"
 
 
@@ -60,24 +64,28 @@ def both_views_bands(scene: StereoScene, rng: np.random.Generator) -> tuple[dict
             synthesize_bands(scene.right, np.random.default_rng(seed)))
 
 
-def cade_pair(scene: StereoScene, rng: np.random.Generator) -> CadePair:
-    """Draw a left and a right band of ``scene`` independently and CADE-transform both."""
+def cade_pair(scene: StereoScene, rng: np.random.Generator, kind: str = "cade") -> CadePair:
+    """Draw a left and a right band of ``scene`` independently and CADE-transform both
+    (``kind``: the network input, ``cade`` or the ``cade-floor`` lever)."""
     left_bands, right_bands = both_views_bands(scene, rng)
     left_name, right_name = (str(name) for name in rng.choice(BAND_NAMES, size=2))
     return CadePair(
-        left=color_agnostic(left_bands[left_name]),
-        right=color_agnostic(right_bands[right_name]),
+        left=network_input(left_bands[left_name], kind),
+        right=network_input(right_bands[right_name], kind),
         disparity=scene.disparity,
         nonoccluded=scene.nonoccluded,
         bands=(left_name, right_name),
     )
 
 
-def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cade") -> CadePair:
+def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cade", kind: str | None = None) -> CadePair:
     """A pair of ``scene`` made in training ``mode`` (:data:`TRAINING_MODES`); ``cade`` is
-    :func:`cade_pair` itself, drawing exactly the same random numbers."""
+    :func:`cade_pair` itself, drawing exactly the same random numbers (its transform
+    ``kind`` may be chosen: :func:`network_input_of`)."""
     if mode == "cade":
-        return cade_pair(scene, rng)
+        return cade_pair(scene, rng, network_input_of(mode, kind))
+    if kind:
+        raise ValueError(f"a network input can be chosen in the cade training mode only, not {mode!r}")
     if mode not in TRAINING_MODES:
         raise ValueError(f"unknown training mode {mode!r}; choose one of {', '.join(TRAINING_MODES)}")
     left_bands, right_bands = both_views_bands(scene, rng)
