@@ -177,7 +177,7 @@ def test_procedural_textures_are_rgb_in_unit_range(seed):
 
 
 def test_cade_pairs_use_the_runtime_transform_and_band_synthesis():
-    assert pairs.color_agnostic is spectral.color_agnostic
+    assert pairs.network_input is spectral.network_input
     assert pairs.synthesize_bands is spectral.synthesize_bands
     scene = render_scene(np.random.default_rng(1), 64, 96, limit=32, textures=TexturePool())
     pair = cade_pair(scene, np.random.default_rng(2))
