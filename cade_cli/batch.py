@@ -147,6 +147,10 @@ class PairOptions:
             raise CadeError(f"unknown --frame {self.frame!r}; choose rectified or original")
         rig_pair_rectification(load_rig(self.rig), self.camera)
 
+    def budget(self) -> int:
+        """The memory limit of one worker, bytes: ``memory_limit``, or the machine's default."""
+        return default_memory_limit() if self.memory_limit is None else self.memory_limit
+
     def fingerprint(self) -> dict:
         """What decides a pair's outputs, as stored in its record: these options and, for
         a learned method, the sha256 of the network files the model card names."""
@@ -519,7 +523,7 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
         raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
                         f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
     searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
-    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+    budget = options.budget()
     result, plan = estimate_disparity_tiled(left, right, method=options.method, min_disp=searched.minimum,
                                             max_disp=searched.maximum, preprocess=options.preprocess,
                                             model=options.model, memory_limit=budget)
@@ -563,7 +567,7 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
     other, rectification = rig_pair_rectification(rig, options.camera)
     check_rig_pair(rig, rectification, left, right, paths=(pair.left, pair.right))
     width = rectification.image_size[0]
-    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+    budget = options.budget()
     found, framed = match_rig_pair(rig, left, right, other=other, frame=options.frame, fill=options.fill,
                                    fix_vertical=options.fix_vertical, method=options.method, min_disp=options.min_disp,
                                    max_disp=options.max_disp, preprocess=options.preprocess, model=options.model,
@@ -635,7 +639,7 @@ def job_memory_bytes(pairs: Sequence[Pair]) -> tuple[int, int, int]:
     rectified or not, that does not fit its limit as tiles)."""
     width, height, largest = max((planned_pair_memory(pair) for pair in pairs), key=lambda plan: plan[2])
     options = pairs[0].options  # the limit is the batch's, not a manifest row's
-    budget = default_memory_limit() if options.memory_limit is None else options.memory_limit
+    budget = options.budget()
     return width, height, min(largest, budget)
 
 
