@@ -164,7 +164,7 @@ def main() -> None:
     methods = tuple(args.methods.split(","))
     lines = ["# Tiling (`benchmarks/tiling.py`)", "",
              f"`{shlex.join(['.venv/bin/python', 'benchmarks/tiling.py', *sys.argv[1:]])}`", "",
-             f"Machine: {os.cpu_count()} CPUs, shared with a training run; timings are indicative.", ""]
+             f"Machine: {os.cpu_count()} CPUs; timings move with whatever else runs (docs/scale.md says).", ""]
     if not args.skip_seams:
         rows = seam_rows(args.data_dir, args.scenes, args.core, methods)
         collars = ", ".join(f"{method} {method_collar(method)} px" for method in methods)

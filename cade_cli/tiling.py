@@ -6,8 +6,9 @@ disparity range, seeded from a low-resolution pass over the whole pair:
 
 1. **The coarse pass.** :func:`cade_cli.range.coarse_match` matches the pair at a coarse
    pyramid level (the pass behind ``--max-disp auto``) over the range asked for.
-2. **The layout.** Tiles are a grid of square cores of the left image (the last row and
-   column of cores are as large as the others, overlapping their neighbours' cores where
+2. **The layout.** Tiles are cores of the left image that cover it without overlap, a
+   quadtree (step 4), or, when a core side is forced (``core``), a grid of square cores
+   (the last row and column as large as the others, overlapping their neighbours' where
    the image does not divide evenly; there the later tile's values are kept). Each core is
    matched inside a window: the core plus a ``collar`` on every side (:func:`method_collar`:
    wider for a learned method, whose network sees further), widened on the left by the
@@ -21,11 +22,15 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    estimates over its core and collar, widened by :func:`cade_cli.range.range_margin`, and
    kept within the range asked for; a tile with too few coarse estimates searches that
    whole range.
-4. **The size.** The largest core (from the image's longer side down by :data:`SIDE_STEP`
-   each time, to :data:`MIN_CORE`) whose every window fits the budget by :func:`tile_memory_bytes`
-   (the registry's :attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel and
-   disparity, plus :data:`PIXEL_BYTES` per pixel, plus a learned method's network strip), after the process's base and the
-   whole-image arrays (:data:`IMAGE_BYTES` per pixel) are set aside.
+4. **The size.** Starting from the whole image, a core whose window does not fit the
+   budget by :func:`tile_memory_bytes` (the registry's
+   :attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel and disparity, plus
+   :data:`PIXEL_BYTES` per pixel, plus a learned method's network strip; after the
+   process's base and the whole-image arrays, :data:`IMAGE_BYTES` per pixel, are set
+   aside) is cut in four, down to :data:`MIN_CORE`; its quarters get their own, narrower
+   seeded ranges. Tiles stay large where the depth varies little, and only the cores
+   that span a wide range pay for it (until session 16 one core side was chosen for the
+   whole image, the one that the widest-ranged tile needed).
 5. **The match and the stitch.** Each window goes through
    :func:`cade_cli.stereo.estimate_disparity` (the one matching path); the core's part of
    its disparity, validity and confidence is copied into the output, the collar dropped.
@@ -45,6 +50,7 @@ import functools
 import math
 import re
 from dataclasses import dataclass
+from typing import NoReturn
 
 import numpy as np
 
@@ -80,9 +86,7 @@ LEARNED_COLLAR = 64
 network's disparity by more than 0.01 px up to about 40 rows and 50 columns away (by 1e-4
 px up to about 70; Adirondack, models/cade-v4), beyond :data:`COLLAR`."""
 MIN_CORE = 32
-"""Smallest core side tried, px."""
-SIDE_STEP = 0.75
-"""Core sides tried: the image's longer side, then this factor smaller each time (multiples of 16 px)."""
+"""No core is cut below this side, px."""
 MIN_TILE_ESTIMATES = 16
 """A tile with fewer coarse estimates than this searches the whole range asked for."""
 
@@ -229,6 +233,7 @@ class TilePlan:
 
     tiles: tuple[Tile, ...]
     core: int
+    """The longest side of a core, px."""
     collar: int
     memory_limit: int
     peak_tile_bytes: int
@@ -243,8 +248,10 @@ class TilePlan:
         if not self.tiled:
             return f"matched whole, within --memory-limit {self.memory_limit / 2**30:.1f} GB"
         seeded = sum(tile.seeded for tile in self.tiles)
+        sides = [max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in self.tiles]
+        size = f"{max(sides)}" if min(sides) == max(sides) else f"{min(sides)}-{max(sides)}"
         return (f"the pair does not fit --memory-limit {self.memory_limit / 2**30:.1f} GB whole: matching it as "
-                f"{len(self.tiles)} tiles of {self.core}x{self.core} px (+{self.collar} px collar; up to "
+                f"{len(self.tiles)} tiles of {size} px (+{self.collar} px collar; up to "
                 f"{self.peak_tile_bytes / 2**30:.2f} GB each), {seeded} with a range seeded from a coarse pass")
 
 
@@ -339,36 +346,76 @@ def plan_tiles(
     budget = memory_limit - BASE_BYTES - IMAGE_BYTES * width * height
     collar = method_collar(method, model) if collar is None else collar
     alignment = window_alignment(method, whole.span, model)
+
+    def refuse(needed: int, side: int) -> NoReturn:
+        raise CadeError(
+            f"a {width}x{height} pair over {whole.count} disparities does not fit --memory-limit "
+            f"{memory_limit / 2**30:.2f} GB even as {side}x{side} px tiles (they need about "
+            f"{(needed + BASE_BYTES + IMAGE_BYTES * width * height) / 2**30:.2f} GB); raise --memory-limit or "
+            f"lower --max-disp")
+
     coarse = None  # none, or too small or too blank to seed: every tile searches the whole range
     if seed:
         try:
             coarse = coarse_match(left, right, min_disp=whole.minimum, max_disp=whole.maximum)
         except CadeError:
             pass
-    sides = [core] if core is not None else [max(width, height)]
-    while sides[-1] > MIN_CORE and core is None:
-        sides.append(max(MIN_CORE, int(sides[-1] * SIDE_STEP) // 16 * 16))
-    needed = None
-    for side in sides:
-        tiles = []
-        for top in core_starts(height, side):
-            for first in core_starts(width, side):
-                rows, columns = (top, min(height, top + side)), (first, min(width, first + side))
-                context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + collar))
-                seeded = None if coarse is None else seeded_range(coarse, *context, whole)
-                chosen = seeded or whole
-                tiles.append(make_tile(rows, columns, (height, width), chosen, seeded is not None, collar,
-                                       alignment, search_reach(method, chosen, model)))
-        peak = max(tile_memory_bytes(method, *tile.window_size, tile.range.count, model=model) for tile in tiles)
-        volume = max(volume_bytes * math.prod(tile.window_size) * tile.range.count for tile in tiles)
-        if peak <= budget and volume <= MEMORY_LIMIT_BYTES:
-            return TilePlan(tuple(tiles), side, collar, memory_limit, peak)
-        needed = peak
-    raise CadeError(
-        f"a {width}x{height} pair over {whole.count} disparities does not fit --memory-limit "
-        f"{memory_limit / 2**30:.2f} GB even as {sides[-1]}x{sides[-1]} px tiles (they need about "
-        f"{(needed + BASE_BYTES + IMAGE_BYTES * width * height) / 2**30:.2f} GB); raise --memory-limit or "
-        f"lower --max-disp")
+
+    def tile_of(rows: tuple[int, int], columns: tuple[int, int]) -> Tile:
+        # Left of the range's maximum a pixel may have no match (x - d < 0), and its coarse
+        # estimate is then a confident mistake; a core there also seeds from the columns up
+        # to that maximum to its right, where every match exists (on session 16's 24 MP
+        # pair two such cores got [0, 107] for a truth of 272..296 px).
+        reach = collar + (max(whole.maximum, 0) if columns[0] < whole.maximum else 0)
+        context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + reach))
+        seeded = None if coarse is None else seeded_range(coarse, *context, whole)
+        chosen = seeded or whole
+        return make_tile(rows, columns, (height, width), chosen, seeded is not None, collar, alignment,
+                         search_reach(method, chosen, model))
+
+    def cost(tile: Tile) -> tuple[int, int]:
+        """(planned bytes, cost-volume bytes) of matching ``tile``."""
+        return (tile_memory_bytes(method, *tile.window_size, tile.range.count, model=model),
+                volume_bytes * math.prod(tile.window_size) * tile.range.count)
+
+    def fits(tile: Tile) -> bool:
+        peak, volume = cost(tile)
+        return peak <= budget and volume <= MEMORY_LIMIT_BYTES
+
+    if core is not None:  # a forced core: a regular grid, or a refusal
+        tiles = [tile_of((top, min(height, top + core)), (first, min(width, first + core)))
+                 for top in core_starts(height, core) for first in core_starts(width, core)]
+        if all(fits(tile) for tile in tiles):
+            return TilePlan(tuple(tiles), core, collar, memory_limit, max(cost(tile)[0] for tile in tiles))
+        refuse(max(cost(tile)[0] for tile in tiles), core)
+    # A quadtree: a core whose tile does not fit is split in four (two when one side is
+    # already short), down to MIN_CORE; a tile's range is seeded from its own core, so
+    # where the scene's depth varies the tiles get smaller and their ranges narrower,
+    # and where it does not they stay large (less of each window is collar and range).
+    tiles, pending = [], [((0, height), (0, width))]
+    while pending:
+        rows, columns = pending.pop()
+        tile = tile_of(rows, columns)
+        if fits(tile):
+            tiles.append(tile)
+            continue
+        halves = [split_span(rows), split_span(columns)]
+        if len(halves[0]) == len(halves[1]) == 1:
+            refuse(cost(tile)[0], max(rows[1] - rows[0], columns[1] - columns[0]))
+        pending += [(r, c) for r in halves[0] for c in halves[1]]
+    tiles.sort(key=lambda tile: (tile.core_rows, tile.core_columns))
+    side = max(max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in tiles)
+    return TilePlan(tuple(tiles), side, collar, memory_limit, max(cost(tile)[0] for tile in tiles))
+
+
+def split_span(span: tuple[int, int]) -> list[tuple[int, int]]:
+    """``span`` (start, stop) cut in two near its middle (a multiple of 16 px from its start),
+    or left whole when the halves would be shorter than :data:`MIN_CORE`."""
+    start, stop = span
+    if stop - start < 2 * MIN_CORE:
+        return [span]
+    middle = start + max(MIN_CORE, (stop - start) // 2 // 16 * 16)
+    return [(start, middle), (middle, stop)]
 
 
 def seam_distance(plan: TilePlan, shape: tuple[int, int]) -> np.ndarray:

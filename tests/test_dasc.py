@@ -9,8 +9,9 @@ from hypothesis import strategies as st
 
 from cade_cli.matching import MATCHERS, densify
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.dasc import DASC_PATTERN, dasc_cost, dasc_descriptor, dasc_sampling_pattern
-from cade_cli.matching.reference import dasc_descriptor_reference
+from cade_cli.matching.dasc import (DASC_PATTERN, dasc_cost, dasc_descriptor, dasc_descriptor_cost,
+                                   dasc_sampling_pattern)
+from cade_cli.matching.reference import dasc_descriptor_cost_reference, dasc_descriptor_reference
 from cli_runner import run_cade, write_png16
 from synthetic import render_pair, smooth_texture
 
@@ -57,6 +58,36 @@ def test_cost_is_zero_for_identical_descriptors_and_one_out_of_view(rng):
     np.testing.assert_allclose(cost.values[:, :, 2], 0.0, atol=1e-5)  # d = 0
     assert (cost.values[:, :3, 5] == 1).all() and (cost.values[:, -2:, 0] == 1).all()
     assert cost.values.min() >= 0 and cost.values.max() <= 1
+
+
+@pytest.mark.parametrize("low, high", [(0, 20), (-7, 9), (-3, 0), (-20, 21), (0, 37)])
+def test_cost_agrees_with_the_per_disparity_reference(rng, low, high):
+    """Ranges of one sign and of both, and ranges about as wide as the 38 px wide image
+    (every block of products then reaches past its edges): the band products give the
+    einsum loop's volume, and the volume a column off does not match it."""
+    left, right = rng.random((2, 13, 38)).astype(np.float32)
+    disparity_range = DisparityRange(low, high)
+    pattern = DASC_PATTERN[:24]
+    slow = dasc_descriptor_cost_reference(dasc_descriptor(left, pattern=pattern),
+                                          dasc_descriptor(right, pattern=pattern), disparity_range)
+    fast = dasc_cost(left, right, disparity_range, pattern=pattern).values
+    assert fast.dtype == np.float32 and fast.shape == slow.shape == (13, 38, high - low + 1)
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-5)
+    assert np.abs(fast[:, 1:] - slow[:, :-1]).max() > 1e-2 and np.abs(fast[..., 1:] - slow[..., :-1]).max() > 1e-2
+
+
+def test_descriptor_cost_is_the_same_for_every_block_size(rng, monkeypatch):
+    """Blocks of rows and columns that do not divide the image give the same volume."""
+    import cade_cli.matching.dasc as dasc
+
+    left, right = (descriptor / np.linalg.norm(descriptor, axis=2, keepdims=True)
+                   for descriptor in rng.random((2, 11, 45, 16)).astype(np.float32))
+    disparity_range = DisparityRange(-4, 30)
+    slow = dasc_descriptor_cost_reference(left, right, disparity_range)
+    for columns, product_bytes in (((1, 1), 1), ((7, 7), 4 * 7 * 41 * 3), ((16, 128), 2**20)):
+        monkeypatch.setattr(dasc, "PRODUCT_COLUMNS", columns)
+        monkeypatch.setattr(dasc, "PRODUCT_BYTES", product_bytes)
+        np.testing.assert_allclose(dasc_descriptor_cost(left, right, disparity_range), slow, rtol=0, atol=1e-5)
 
 
 @settings(max_examples=4, deadline=None)

@@ -161,3 +161,30 @@ def test_a_learned_method_plans_its_network_strip_and_its_tiles_fit(pair):
     assert plan.tiled
     for tile in plan.tiles:
         assert tile_memory_bytes("cade", *tile.window_size, tile.range.count) <= untiled // 2
+
+
+def test_the_budget_plan_cuts_only_the_cores_that_need_it(pair):
+    """The quadtree: cores that partition the image, each tile within the budget, and less
+    matching work than the best regular grid of one core side that fits the same budget."""
+    height, width = pair.left.shape
+    untiled = BASE_BYTES + matching_memory_bytes("census-sgm", width, height, MAX_DISP + 1)
+    limit = BASE_BYTES + untiled // 8
+    plan = plan_tiles(pair.left, pair.right, method="census-sgm", max_disp=MAX_DISP, memory_limit=limit)
+    covered = np.zeros(pair.left.shape, int)
+    for tile in plan.tiles:
+        covered[slice(*tile.core_rows), slice(*tile.core_columns)] += 1
+    np.testing.assert_array_equal(covered, 1)
+
+    def work(tiles):
+        return sum(np.prod(tile.window_size) * tile.range.count for tile in tiles)
+
+    for side in range(max(height, width), 16, -16):  # the largest regular grid that fits
+        try:
+            grid = plan_tiles(pair.left, pair.right, method="census-sgm", max_disp=MAX_DISP, memory_limit=limit,
+                              core=side)
+            break
+        except CadeError:
+            continue
+    sides = {max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in plan.tiles}
+    assert len(sides) > 1, sides  # the box's edges cost more range than the plain background
+    assert work(plan.tiles) < work(grid.tiles)

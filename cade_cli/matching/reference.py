@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.cost import overlap
 
 SGM_DIRECTIONS: tuple[tuple[int, int], ...] = (
     (0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1),
@@ -158,3 +159,23 @@ def dasc_descriptor_reference(
             entries = np.array(entries)
             descriptor[y, x] = entries / np.sqrt((entries**2).sum())
     return descriptor
+
+
+def dasc_descriptor_cost_reference(
+    left_descriptor: np.ndarray, right_descriptor: np.ndarray, disparity_range: DisparityRange
+) -> np.ndarray:
+    """:func:`cade_cli.matching.dasc.dasc_descriptor_cost` one disparity at a time:
+    ``1 - <left(y, x), right(y, x - d)>`` over the columns where both lie in the image, 1
+    elsewhere, clipped to [0, 1] (the per-disparity ``einsum`` the fast version replaced).
+
+    Returns:
+        float32 (H, W, D).
+    """
+    height, width, _ = left_descriptor.shape
+    planes = np.ones((disparity_range.count, height, width), np.float32)
+    for k, d in enumerate(range(disparity_range.minimum, disparity_range.maximum + 1)):
+        left_cols, right_cols = overlap(width, d)
+        planes[k][:, left_cols] -= np.einsum("hwk,hwk->hw", left_descriptor[:, left_cols],
+                                             right_descriptor[:, right_cols])
+    np.clip(planes, 0.0, 1.0, out=planes)
+    return np.ascontiguousarray(planes.transpose(1, 2, 0))
