@@ -197,7 +197,7 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
                         levels=16, workers=0, init=str(tmp_path / "legacy.pt"))
     card = export_checkpoint(train(tuned), tmp_path / "new.onnx", tmp_path / "new.json", other_ranges=(24,))
     assert card["design"] == {"padding": "zeros", "entry_kernel": 1, "channels3d": 8, "census": False,
-                              "aggregation": "3d"}
+                              "aggregation": "3d", "second_scale": False}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
 
@@ -346,3 +346,49 @@ def test_a_batch_without_ground_truth_is_skipped_not_learned(tmp_path: Path, mon
     state = torch.load(train(config), weights_only=False)["model"]
     assert all(torch.isfinite(value).all() for value in state.values() if value.is_floating_point())
     assert capsys.readouterr().out.count("step skipped") == 2
+
+
+def test_the_second_scale_reads_the_right_view_at_the_shifted_column_and_its_volume_peaks_at_the_truth():
+    from cade_cli.train.model import HALF_OFFSETS, local_correlation, shifted_right
+
+    generator = torch.Generator().manual_seed(0)
+    right = torch.rand(1, 8, 6, 40, generator=generator)
+    # bilinear reading at x - d, zeros outside the view
+    for d in (0.0, 3.0, 2.25, -1.5):
+        read = shifted_right(right, torch.full((1, 1, 6, 40), d))
+        for x in range(40):
+            position = x - d
+            low, weight = int(np.floor(position)), position - np.floor(position)
+            expected = sum(w * (right[..., c] if 0 <= c < 40 else torch.zeros_like(right[..., 0]))
+                           for c, w in ((low, 1 - weight), (low + 1, weight)) if w > 0)
+            torch.testing.assert_close(read[..., x], expected)
+    # right = left moved by a known disparity; a start 2 px off: the volume peaks at offset +2
+    left = torch.rand(1, 8, 6, 60, generator=generator)
+    truth = 7
+    shifted = torch.zeros_like(left)
+    shifted[..., :-truth] = left[..., truth:]  # right(x) = left(x + truth): disparity 7
+    volume = local_correlation(left, shifted, torch.full((1, 1, 6, 60), truth - 2.0), groups=2)
+    per_offset = volume[..., 20:50].view(1, 2 * HALF_OFFSETS + 1, 2, 6, 30).mean(dim=(2, 3, 4))
+    assert int(per_offset.argmax()) - HALF_OFFSETS == 2
+
+
+def test_a_second_scale_starts_at_the_quarter_estimate_and_exports(tmp_path: Path):
+    from cade_cli.train.export import export_onnx
+
+    torch.manual_seed(0)
+    net = CadeNet(levels=24, second_scale=True).eval()
+    left = torch.rand(1, 1, 40, 64)
+    right = torch.roll(left, -4, dims=-1)
+    with torch.no_grad():
+        out = net(left, right)
+    # a zero-initialised last layer: a uniform choice, no residual (only the 1/2-level resampling)
+    assert (out["half"] - out["coarse"]).abs().max() < 0.05 * out["coarse"].abs().max() + 1e-3
+    torch.nn.init.normal_(net.second_scale.net[-1].weight, std=0.1)
+    with torch.no_grad():
+        changed = net(left, right)
+    assert not torch.allclose(changed["half"], out["half"], atol=1e-3)
+    wide = CadeNet(levels=48, second_scale=True).eval()  # no weight depends on the range
+    wide.load_state_dict(net.state_dict())
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path)
+    assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3

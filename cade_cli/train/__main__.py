@@ -54,6 +54,8 @@ def fit(
     aggregation: Annotated[str, typer.Option(help="3d (3x3x3 kernels; every shipped model) or separable (a 2D "
                                              "kernel per disparity slice, then a 1D one along disparity).")]
     = "3d",
+    second_scale: Annotated[bool, typer.Option(help="A 1/2-resolution stage: a local cost volume +-8 px around "
+                                               "the 1/4 level's estimate, decided by a 2D CNN.")] = False,
     init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
                                                "(a wider 3D part starts fresh).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
@@ -90,7 +92,8 @@ def fit(
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
-                         training_mode=training_mode, time_budget_s=time_budget, network_input=network_input)
+                         second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
+                         network_input=network_input)
     train(config, resume=resume)
 
 

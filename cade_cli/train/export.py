@@ -112,7 +112,9 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
         card_path, name=onnx_path.stem, divisor=DIVISOR, trained_levels=net.levels, variants=variants,
         architecture="CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> "
                      + ("separable (2D + 1D) " if net.design["aggregation"] == "separable" else "3D ")
-                     + "hourglass -> soft-argmin" + (" -> full-res refinement" if output == "disparity" else
+                     + "hourglass -> soft-argmin"
+                     + (" -> 1/2-res local cost volume (+-8 px) + 2D CNN" if net.design.get("second_scale") else "")
+                     + (" -> full-res refinement" if output == "disparity" else
                                             " -> bilinear x4 (refinement net trained, not exported)"),
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
         input=network_input, input_transform=INPUT_TRANSFORMS[network_input], opset=OPSET,

@@ -61,6 +61,9 @@ class TrainConfig:
     aggregation: str = "3d"
     """CadeNet's aggregation (:data:`~cade_cli.train.model.AGGREGATIONS`): 3x3x3 kernels
     (every shipped model) or separable 2D + 1D ones (the Accuracy II lever)."""
+    second_scale: bool = False
+    """CadeNet's 1/2-resolution stage between the 1/4 level and the refinement (the
+    second-scale lever of Accuracy II; :class:`~cade_cli.train.model.SecondScale`)."""
     census: bool = False
     """Feed CadeNet's aggregation a census cost volume beside the correlation (the
     Accuracy II lever; with ``init`` and ``init_partial`` it starts as the checkpoint)."""
@@ -152,6 +155,8 @@ def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, 
     mask = (target >= 0) & (target < levels)
     fine = F.smooth_l1_loss(out["disparity"][mask], target[mask])
     coarse = F.smooth_l1_loss(out["coarse"][mask], target[mask])
+    if "half" in out:  # the second scale's estimate is supervised like the 1/4 level's
+        coarse = coarse + F.smooth_l1_loss(out["half"][mask], target[mask])
     return fine + coarse_weight * coarse, mask
 
 

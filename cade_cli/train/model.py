@@ -6,6 +6,9 @@ Design (justified in models/README.md):
   aggregate  3D CNN with one stride-2 hourglass, 8-16 channels;
   regress    soft-argmin over the levels (x4 to full-resolution pixels), plus the
              standard deviation of that distribution as an uncertainty;
+  half       optional second scale (``second_scale``): a local cost volume at 1/2
+             resolution, +-8 px around the 1/4 level's estimate, decided by a small 2D CNN
+             (:class:`SecondScale`; the Accuracy II lever for thin structures);
   refine     full-resolution 2D residual refinement guided by the left band
              (dilated convolutions, 16 channels), for edges and sub-pixel detail.
              An export can leave it out (:class:`ExportWrapper`, ``output="coarse"``):
@@ -83,6 +86,11 @@ class FeatureNet(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net(x)
 
+    def both_scales(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, 1, H, W) -> the 1/2-level features (B, 16, H/2, W/2) on the way, and the output."""
+        half = self.net[:2](x)
+        return half, self.net[2:](half)
+
 
 def groupwise_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, groups: int) -> torch.Tensor:
     """Cost volume (B, G, D, h, w): mean product of each channel group of left(x) and right(x - d).
@@ -158,6 +166,62 @@ class Aggregation(nn.Module):
         return self.exit(x).squeeze(1)
 
 
+HALF_OFFSETS = 4
+"""The second scale searches +-this many 1/2-level px (+-8 full-resolution px, in 2 px
+steps; its soft-argmin gives the sub-pixel value) around the 1/4 level's estimate."""
+
+
+def shifted_right(features: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+    """``features`` (B, C, h, w) of the right view read at x - ``disparity`` (B, 1, h, w,
+    px of this level), bilinearly; zeros outside the view. One GridSample in ONNX."""
+    batch, _, height, width = features.shape
+    xs = torch.arange(width, dtype=features.dtype, device=features.device).view(1, 1, width)
+    ys = torch.arange(height, dtype=features.dtype, device=features.device).view(1, height, 1)
+    x = (xs - disparity[:, 0]) * (2.0 / (width - 1)) - 1.0
+    y = (ys * (2.0 / (height - 1)) - 1.0).expand_as(x)
+    return F.grid_sample(features, torch.stack([x, y], dim=-1), mode="bilinear", padding_mode="zeros",
+                         align_corners=True)
+
+
+def local_correlation(left: torch.Tensor, right: torch.Tensor, start: torch.Tensor, groups: int) -> torch.Tensor:
+    """(B, groups * (2 * :data:`HALF_OFFSETS` + 1), h, w): the group-wise correlation of
+    ``left`` (B, C, h, w) with ``right`` read at x - (``start`` + o), for each offset o in
+    -HALF_OFFSETS .. HALF_OFFSETS (offset-major: the channels of offset o come together)."""
+    batch, channels, height, width = left.shape
+    return torch.cat([(left * shifted_right(right, start + offset))
+                      .view(batch, groups, channels // groups, height, width).mean(dim=2)
+                      for offset in range(-HALF_OFFSETS, HALF_OFFSETS + 1)], dim=1)
+
+
+class SecondScale(nn.Module):
+    """The 1/2-resolution stage: correlates the left view's 1/2-level features with the right
+    view's, shifted by the 1/4 level's estimate plus each of 2 * :data:`HALF_OFFSETS` + 1
+    offsets (4 channel groups each), and a 2D CNN that also sees the left features and the
+    estimate turns that local volume into a soft-argmin residual. Its cost grows with the
+    image, not with the searched range."""
+
+    def __init__(self, features: int = 16, groups: int = 4, channels: int = 32):
+        super().__init__()
+        self.groups = groups
+        self.head = nn.Sequential(conv2d(features, features), nn.Conv2d(features, features, 3, padding=1))
+        offsets = 2 * HALF_OFFSETS + 1
+        self.net = nn.Sequential(conv2d(groups * offsets + features + 1, channels), conv2d(channels, channels, dilation=2),
+                                 conv2d(channels, channels), nn.Conv2d(channels, offsets, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)  # start as the 1/4 level's estimate (a uniform distribution)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, half_left: torch.Tensor, half_right: torch.Tensor, coarse: torch.Tensor) -> torch.Tensor:
+        """(B, 16, H/2, W/2) features of both views and the full-resolution 1/4-level estimate
+        (B, 1, H, W) -> the full-resolution estimate of this stage (B, 1, H, W)."""
+        feat_left, feat_right = self.head(torch.cat([half_left, half_right], dim=0)).chunk(2, dim=0)
+        start = 0.5 * F.interpolate(coarse, size=feat_left.shape[-2:], mode="bilinear", align_corners=False)
+        volume = local_correlation(feat_left, feat_right, start, self.groups)
+        logits = self.net(torch.cat([volume, feat_left, start / (0.5 * DISPARITY_SCALE)], dim=1))
+        offsets = torch.arange(-HALF_OFFSETS, HALF_OFFSETS + 1, dtype=logits.dtype, device=logits.device)
+        residual = (torch.softmax(logits, dim=1) * offsets.view(1, -1, 1, 1)).sum(dim=1, keepdim=True)
+        return 2.0 * F.interpolate(start + residual, size=coarse.shape[-2:], mode="bilinear", align_corners=False)
+
+
 class Refinement(nn.Module):
     """Full-resolution residual on the upsampled disparity, guided by the left band."""
 
@@ -205,28 +269,32 @@ class CadeNet(nn.Module):
             (the Accuracy II lever; models/README.md says what it measured).
         aggregation: ``"3d"`` (every shipped model) or ``"separable"``
             (:data:`AGGREGATIONS`; the 2D-aggregation lever).
+        second_scale: a 1/2-resolution stage (:class:`SecondScale`) between the 1/4
+            level's soft-argmin and the refinement (the second-scale lever).
     """
 
     def __init__(self, levels: int = 128, features: int = 32, groups: int = 8, channels3d: int = 8,
                  refine_channels: int = 16, padding: str = "zeros", entry_kernel: int = 1, census: bool = False,
-                 aggregation: str = "3d"):
+                 aggregation: str = "3d", second_scale: bool = False):
         super().__init__()
         if levels % DIVISOR:
             raise ValueError(f"levels must be a multiple of {DIVISOR}, got {levels}")
         self.levels, self.groups = levels, groups
         self.coarse_levels = levels // 4
         self.design = {"padding": padding, "entry_kernel": entry_kernel, "channels3d": channels3d, "census": census,
-                       "aggregation": aggregation}
+                       "aggregation": aggregation, "second_scale": second_scale}
         self.census = census
         self.features = FeatureNet(features, padding)
         self.aggregation = Aggregation(groups, channels3d, entry_kernel, extra_inputs=int(census), kind=aggregation)
+        self.second_scale = SecondScale() if second_scale else None
         self.refinement = Refinement(refine_channels, padding)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
         """left, right: (B, 1, H, W) -> dict with ``disparity`` (B, 1, H, W) refined (only
         when ``refine``), ``coarse`` (B, 1, H, W) soft-argmin upsampled, ``uncertainty``
-        (B, 1, H, W) px."""
-        both = self.features(torch.cat([left, right], dim=0))
+        (B, 1, H, W) px; with a second scale also ``half`` (B, 1, H, W), its estimate, which
+        the refinement then starts from."""
+        half, both = self.features.both_scales(torch.cat([left, right], dim=0))
         feat_left, feat_right = both.chunk(2, dim=0)
         cost = groupwise_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
         if self.census:
@@ -241,8 +309,10 @@ class CadeNet(nn.Module):
         uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear",
                                           align_corners=False)
         out = {"coarse": coarse, "uncertainty": uncertainty}
+        if self.second_scale is not None:
+            out["half"] = self.second_scale(*half.chunk(2, dim=0), coarse)
         if refine:
-            out["disparity"] = self.refinement(coarse, left, DISPARITY_SCALE)
+            out["disparity"] = self.refinement(out.get("half", coarse), left, DISPARITY_SCALE)
         return out
 
 
@@ -269,7 +339,8 @@ class ExportWrapper(nn.Module):
         return out[self.output], out["uncertainty"]
 
 
-LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "census": False, "aggregation": "3d"}
+LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "census": False, "aggregation": "3d",
+                 "second_scale": False}
 """The design of checkpoints whose config predates the ``padding``/``entry_kernel`` keys (cade-v1 … v3)."""
 
 
