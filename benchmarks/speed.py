@@ -81,6 +81,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="leave glibc's malloc thresholds as they are (default: set them as the cade command does, "
         "cade_cli.allocator.retain_freed_memory)",
     )
+    parser.add_argument("--model", default=None,
+                        help="the network of the cade method, as for `cade disparity --model` (default: the shipped one)")
     parser.add_argument("--markdown", type=Path, default=None, help="also write the report to this file")
     args = parser.parse_args(argv)
     if args.repeat < 1:
@@ -378,7 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     from cade_cli.errors import CadeError
     from cade_cli.evaluation.loop import run_benchmark, takes_preprocess
     from cade_cli.evaluation.timing import Timing
-    from cade_cli.matching import MATCHERS
+    from cade_cli.matching import MATCHERS, get_matcher
 
     if args.default_malloc:
         args.allocator_line = "glibc defaults (--default-malloc)"
@@ -389,7 +391,8 @@ def main(argv: list[str] | None = None) -> int:
         args.allocator_line = "the C library's defaults (not glibc)"
 
     notes: list[str] = []
-    matchers = {name: MATCHERS[name] for name in args.method_list if name in MATCHERS}
+    matchers = {name: MATCHERS[name] if args.model is None or name != "cade" else get_matcher(name, model=args.model)
+                for name in args.method_list if name in MATCHERS}
     if PANDORA in args.method_list:
         settings, source = census_sgm_settings()
         try:
