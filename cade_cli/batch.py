@@ -426,7 +426,9 @@ def remove_stale_temporaries(pairs: Iterable[Pair]) -> int:
     removed = 0
     for pair in pairs:
         for path in (*pair.outputs().values(), pair.record):
-            for candidate in path.parent.glob(f".{glob.escape(path.stem)}.tmp-*{glob.escape(path.suffix)}"):
+            # ".*": a writer killed inside a nested atomic write leaves a temporary of a
+            # temporary (``..disp.tmp-<hex>.tmp-<hex>.pfm``); intended_path sorts out the rest
+            for candidate in path.parent.glob(f".*{glob.escape(path.stem)}.tmp-*{glob.escape(path.suffix)}"):
                 if intended_path(candidate) == path and candidate.is_file():
                     candidate.unlink(missing_ok=True)
                     removed += 1

@@ -469,3 +469,24 @@ def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, mon
     assert code == 1 and len(stderr.strip().splitlines()) == 1, stderr
     assert stderr.startswith("cade: error:") and message in stderr
     assert not (cameras / "out").exists()
+
+
+def test_stale_temporaries_of_a_pair_go_nested_ones_included_and_no_other_file(tmp_path):
+    from cade_cli.atomic import temporary_sibling
+    from cade_cli.batch import remove_stale_temporaries
+
+    output = tmp_path / "0.pfm"
+    outer = temporary_sibling(output)
+    inner = temporary_sibling(outer)  # a nested atomic write killed half-way
+    neighbour = temporary_sibling(tmp_path / "10.pfm")  # another pair's: kept
+    for path in (outer, inner, neighbour):
+        path.write_bytes(b"partial")
+
+    class OnePair:
+        record = tmp_path / "0.json"
+
+        def outputs(self):
+            return {"disparity": output}
+
+    assert remove_stale_temporaries([OnePair()]) == 2
+    assert not outer.exists() and not inner.exists() and neighbour.exists()
