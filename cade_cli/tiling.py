@@ -222,6 +222,11 @@ class Tile:
     """True when the range came from the coarse pass, False when it is the whole range."""
 
     @property
+    def side(self) -> int:
+        """The core's longer side, px."""
+        return max(self.core_rows[1] - self.core_rows[0], self.core_columns[1] - self.core_columns[0])
+
+    @property
     def window_size(self) -> tuple[int, int]:
         """(width, height) of the window, px."""
         return (self.window_columns[1] - self.window_columns[0], self.window_rows[1] - self.window_rows[0])
@@ -248,7 +253,7 @@ class TilePlan:
         if not self.tiled:
             return f"matched whole, within --memory-limit {self.memory_limit / 2**30:.1f} GB"
         seeded = sum(tile.seeded for tile in self.tiles)
-        sides = [max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in self.tiles]
+        sides = [tile.side for tile in self.tiles]
         size = f"{max(sides)}" if min(sides) == max(sides) else f"{min(sides)}-{max(sides)}"
         return (f"the pair does not fit --memory-limit {self.memory_limit / 2**30:.1f} GB whole: matching it as "
                 f"{len(self.tiles)} tiles of {size} px (+{self.collar} px collar; up to "
@@ -404,8 +409,7 @@ def plan_tiles(
             refuse(cost(tile)[0], max(rows[1] - rows[0], columns[1] - columns[0]))
         pending += [(r, c) for r in halves[0] for c in halves[1]]
     tiles.sort(key=lambda tile: (tile.core_rows, tile.core_columns))
-    side = max(max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in tiles)
-    return TilePlan(tuple(tiles), side, collar, memory_limit, max(cost(tile)[0] for tile in tiles))
+    return TilePlan(tuple(tiles), max(tile.side for tile in tiles), collar, memory_limit, max(cost(tile)[0] for tile in tiles))
 
 
 def split_span(span: tuple[int, int]) -> list[tuple[int, int]]:

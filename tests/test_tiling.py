@@ -185,6 +185,6 @@ def test_the_budget_plan_cuts_only_the_cores_that_need_it(pair):
             break
         except CadeError:
             continue
-    sides = {max(t.core_rows[1] - t.core_rows[0], t.core_columns[1] - t.core_columns[0]) for t in plan.tiles}
+    sides = {tile.side for tile in plan.tiles}
     assert len(sides) > 1, sides  # the box's edges cost more range than the plain background
     assert work(plan.tiles) < work(grid.tiles)
