@@ -12,6 +12,7 @@ Methods:
     census-sgm, zncc-sgm,        ``cade_cli.matching.MATCHERS[name]`` on the raw bands.
     dasc-sgm, sgbm
     cade                         the CADE network (onnxruntime), color agnostic transform included.
+    cade-network                 the same network without the runtime's SGBM refinement.
     pandora-census-sgm           Pandora 1.9 + libsgm plugin, configured like cade's
                                  census-sgm (see :func:`pandora_pipeline_config`), its
                                  invalid pixels filled and median-filtered by the same
@@ -45,7 +46,7 @@ from pathlib import Path
 
 from cade_cli.evaluation.timing import THREAD_VARIABLES  # light: NumPy is not loaded yet
 
-ALL_METHODS = ("census-sgm", "zncc-sgm", "dasc-sgm", "sgbm", "cade", "pandora-census-sgm")
+ALL_METHODS = ("census-sgm", "zncc-sgm", "dasc-sgm", "sgbm", "cade", "cade-network", "pandora-census-sgm")
 PANDORA = "pandora-census-sgm"
 
 # cade's census-sgm settings (cade_cli.matching.classical.census_sgm), used when they
@@ -391,8 +392,9 @@ def main(argv: list[str] | None = None) -> int:
         args.allocator_line = "the C library's defaults (not glibc)"
 
     notes: list[str] = []
-    matchers = {name: MATCHERS[name] if args.model is None or name != "cade" else get_matcher(name, model=args.model)
-                for name in args.method_list if name in MATCHERS}
+    learned = ("cade", "cade-network")
+    matchers = {name: get_matcher(name, model=args.model) if args.model is not None and name in learned
+                else MATCHERS[name] for name in args.method_list if name in MATCHERS}
     if PANDORA in args.method_list:
         settings, source = census_sgm_settings()
         try:

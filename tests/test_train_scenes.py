@@ -273,6 +273,14 @@ def test_learning_curves_chain_runs_by_their_init_and_draw_one_picture(tmp_path)
     assert [p[0] for p in runs["a"].points["middlebury05-cs"]] == [50, 100]
     assert [p[0] for p in runs["b"].points["middlebury05-cs"]] == [150, 150]
     assert "synthetic" not in runs["b"].points
+    assert runs["a"].points["middlebury05-cs"][0][3] is None  # a log from before the cpu_s column
+    folder = tmp_path / "c"
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps({"steps": 100, "init": None}))
+    (folder / "log.csv").write_text("step,elapsed_s,lr,loss,train_epe,set,val_epe,val_bad3,cpu_s\n"
+                                    "100,9,,,,middlebury14Q-rgb,2.0,12,7200\n")
+    runs["c"] = read_run(folder, runs)
+    assert runs["c"].points["middlebury14Q-rgb"] == [(100, 2.0, 12.0, 2.0)]  # CPU-hours
     pytest.importorskip("matplotlib")
     plot(list(runs.values()), tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 10_000

@@ -66,6 +66,13 @@ def fit(
     network_input: Annotated[str | None, typer.Option(help="With --training-mode cade: cade-floor (the color "
                                                       "agnostic transform with a contrast floor; a lever) "
                                                       "instead of the paper's transform.")] = None,
+    architecture: Annotated[str, typer.Option(help="cadenet (3D aggregation; cade-v1 ... v8) or cadenet2d (the "
+                                              "all-2D generation of Accuracy III).")] = "cadenet",
+    width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution.")] = 48,
+    full_refinement: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a full-resolution refinement "
+                                                 "(0: none; the 1/2-level estimate upsampled).")] = 0,
+    validate_rgb: Annotated[bool, typer.Option(help="Also validate on Middlebury's same-band tasks (R>R, G>G, "
+                                               "B>B), for the RGB curves.")] = False,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
 ) -> None:
@@ -77,6 +84,10 @@ def fit(
 
     from cade_cli.train.model import AGGREGATIONS
 
+    from cade_cli.train.networks import ARCHITECTURES
+
+    if architecture not in ARCHITECTURES:
+        raise typer.BadParameter(f"must be one of {', '.join(ARCHITECTURES)}", param_hint="--architecture")
     if aggregation not in AGGREGATIONS:
         raise typer.BadParameter(f"must be one of {', '.join(AGGREGATIONS)}", param_hint="--aggregation")
     if network_input is not None and (training_mode != "cade" or network_input not in ("cade", "cade-floor")):
@@ -93,7 +104,8 @@ def fit(
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
-                         network_input=network_input)
+                         network_input=network_input, architecture=architecture, width2d=width2d,
+                         full_refinement=full_refinement, validate_rgb=validate_rgb)
     train(config, resume=resume)
 
 

@@ -15,8 +15,9 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-SETS = ("middlebury05-cs", "middlebury14Q-cs")
-"""Validation sets drawn: the network alone, CS tasks R>B and B>R of both Middlebury sets."""
+SETS = ("middlebury05-cs", "middlebury14Q-cs", "middlebury05-rgb", "middlebury14Q-rgb")
+"""Validation sets drawn (those some run has): the network alone, CS tasks R>B and B>R and
+same-band tasks R>R, G>G, B>B of both Middlebury sets (:func:`~cade_cli.train.fit.validation_sets`)."""
 
 
 @dataclass
@@ -24,8 +25,10 @@ class RunCurve:
     name: str
     start: int
     steps: int
-    points: dict[str, list[tuple[int, float, float]]] = field(default_factory=dict)
-    """set -> [(step from the chain's start, EPE, bad-3 %)]."""
+    points: dict[str, list[tuple[int, float, float, float | None]]] = field(default_factory=dict)
+    """set -> [(step from the chain's start, EPE, bad-3 %, CPU-hours of this run or None)]:
+    CPU-hours from the log's ``cpu_s`` (logs since Accuracy III), the training process's
+    CPU time, all threads."""
 
 
 def read_run(folder: Path, runs: dict[str, RunCurve]) -> RunCurve:
@@ -37,8 +40,9 @@ def read_run(folder: Path, runs: dict[str, RunCurve]) -> RunCurve:
     with (folder / "log.csv").open() as stream:
         for row in csv.DictReader(stream):
             if row["set"] in SETS and row["val_epe"]:
+                cpu = float(row["cpu_s"]) / 3600 if row.get("cpu_s") else None
                 curve.points.setdefault(row["set"], []).append(
-                    (start + int(row["step"]), float(row["val_epe"]), float(row["val_bad3"])))
+                    (start + int(row["step"]), float(row["val_epe"]), float(row["val_bad3"]), cpu))
     return curve
 
 
@@ -57,30 +61,38 @@ def fill_final_points(curve: RunCurve, folder: Path, data_dir: Path | None) -> N
     for name in missing:
         if name in sets:
             epe, bad3 = evaluate(net, sets[name], "cpu")
-            curve.points[name] = [(curve.start + int(state["step"]), epe, bad3)]
+            curve.points[name] = [(curve.start + int(state["step"]), epe, bad3, None)]
 
 
 def plot(curves: list[RunCurve], path: Path) -> None:
+    """One PNG: a column per validation set some run has; rows EPE and bad-3 against steps
+    and, when some run logged its CPU time, against CPU-hours (equal-compute comparisons)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for column, name in enumerate(SETS):
-        for row, (metric, label) in enumerate(((1, "EPE (px)"), (2, "bad-3 (%)"))):
+    sets = [name for name in SETS if any(curve.points.get(name) for curve in curves)] or list(SETS[:2])
+    with_cpu = any(p[3] is not None for curve in curves for points in curve.points.values() for p in points)
+    axes_x = [(0, "training steps (cumulative over the fine-tuning chain)")]
+    if with_cpu:
+        axes_x.append((3, "CPU-hours of the run (training process, all threads)"))
+    rows = [(x, metric, label, xlabel) for x, xlabel in axes_x for metric, label in ((1, "EPE (px)"), (2, "bad-3 (%)"))]
+    figure, axes = plt.subplots(len(rows), len(sets), figsize=(4.2 * len(sets), 3.3 * len(rows)), squeeze=False)
+    for column, name in enumerate(sets):
+        for row, (x, metric, label, xlabel) in enumerate(rows):
             axis = axes[row][column]
             for curve in curves:
-                points = curve.points.get(name, [])
+                points = [p for p in curve.points.get(name, []) if p[x] is not None]
                 if points:
-                    axis.plot([p[0] for p in points], [p[metric] for p in points], marker="o", markersize=3,
+                    axis.plot([p[x] for p in points], [p[metric] for p in points], marker="o", markersize=3,
                               label=curve.name)
-            axis.set_title(f"{name}: network alone, {label.split(' ')[0]}")
+            axis.set_title(f"{name}: network alone, {label.split(' ')[0]}", fontsize=9)
             axis.set_ylabel(label)
+            axis.set_xlabel(xlabel, fontsize=8)
             axis.grid(alpha=0.3)
-    for axis in axes[1]:
-        axis.set_xlabel("training steps (cumulative over the fine-tuning chain)")
     axes[0][0].legend(fontsize=8)
-    figure.suptitle("CadeNet validation (R>B and B>R of each scene; python -m cade_cli.train curves)")
+    figure.suptitle("Validation of the network alone (cs: R>B and B>R; rgb: R>R, G>G, B>B of each scene; "
+                    "python -m cade_cli.train curves)")
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
+    figure.savefig(path, dpi=100)

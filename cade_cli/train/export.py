@@ -19,7 +19,8 @@ import torch
 
 from cade_cli.checksum import file_sha256
 from cade_cli.model_card import write_card
-from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, design_of, parameter_count
+from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
+from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import network_input_of
 
 OPSET = 17
@@ -43,7 +44,7 @@ narrower 96 runs spans up to 88 px a fifth faster (see models/README.md)."""
 def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
     state = torch.load(path, map_location="cpu", weights_only=False)
     config = state["config"]
-    net = CadeNet(config.get("levels", config.get("max_disp")), **design_of(config))  # "max_disp": runs before v6
+    net = network_of(config)
     net.load_state_dict(state["model"])
     return net.eval(), state
 
@@ -73,7 +74,7 @@ def export_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sample_s
     temporary.replace(path)
 
 
-def verify_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sizes=((96, 128), (200, 328)),
+def verify_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sizes=((96, 128), (208, 336)),
                 seed: int = 0) -> float:
     """Max |ONNX - PyTorch| over both outputs on random inputs of several sizes (px)."""
     import onnxruntime as ort
@@ -91,6 +92,22 @@ def verify_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sizes=((
     return worst
 
 
+def architecture_text(net, output: str) -> str:
+    """The card's one-line ``architecture``."""
+    if not isinstance(net, CadeNet):
+        design = net.design
+        return (f"CadeNet2D: 2D features (1/2, 1/4 res) -> normalised group-wise correlation ({design['groups']} "
+                f"groups) -> 2D U-Net ({design['width']} channels at 1/4) -> soft-argmin -> 1/2-res warped-feature "
+                f"refinement" + (" -> full-res refinement" if design["refine_channels"] else " -> bilinear x2")
+                + ("" if output == "disparity" else " (coarse output: refinements not exported)"))
+    return ("CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> "
+            + ("separable (2D + 1D) " if net.design["aggregation"] == "separable" else "3D ")
+            + "hourglass -> soft-argmin"
+            + (" -> 1/2-res local cost volume (+-8 px) + 2D CNN" if net.design.get("second_scale") else "")
+            + (" -> full-res refinement" if output == "disparity" else
+               " -> bilinear x4 (refinement net trained, not exported)"))
+
+
 def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None,
                       other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity") -> dict:
     """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
@@ -100,6 +117,8 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
     lists them narrowest first."""
     net, state = load_checkpoint(checkpoint)
     network_input = network_input_of(state["config"].get("training_mode", "cade"), state["config"].get("network_input"))
+    if not isinstance(net, CadeNet):
+        other_ranges = ()  # the all-2D generation's weights depend on the range: one variant, the pyramid beyond
     targets = sorted([(net.levels, onnx_path)] + [(r, onnx_path.with_name(f"{onnx_path.stem}-{r}.onnx"))
                                                     for r in set(other_ranges) if r != net.levels])
     variants, max_difference = [], 0.0
@@ -109,13 +128,8 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
         max_difference = max(max_difference, verify_onnx(variant_net, path, output=output))
         variants.append({"levels": levels, "file": path.name, "sha256": file_sha256(path)})
     return write_card(
-        card_path, name=onnx_path.stem, divisor=DIVISOR, trained_levels=net.levels, variants=variants,
-        architecture="CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> "
-                     + ("separable (2D + 1D) " if net.design["aggregation"] == "separable" else "3D ")
-                     + "hourglass -> soft-argmin"
-                     + (" -> 1/2-res local cost volume (+-8 px) + 2D CNN" if net.design.get("second_scale") else "")
-                     + (" -> full-res refinement" if output == "disparity" else
-                                            " -> bilinear x4 (refinement net trained, not exported)"),
+        card_path, name=onnx_path.stem, divisor=getattr(net, "divisor", DIVISOR), trained_levels=net.levels,
+        variants=variants, architecture=architecture_text(net, output),
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
         input=network_input, input_transform=INPUT_TRANSFORMS[network_input], opset=OPSET,
         onnx_vs_torch_max_abs_diff=max_difference, steps=state["step"], train_wall_time_s=round(state["elapsed_s"]),

@@ -20,7 +20,8 @@ import torch.nn.functional as F
 
 from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
 from cade_cli.matching.network import pad_to_divisor
-from cade_cli.train.model import DIVISOR, CadeNet, adapt_state_dict, design_of, parameter_count, transferable
+from cade_cli.train.model import DIVISOR, adapt_state_dict, parameter_count, transferable
+from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES, network_input_of
 from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
@@ -89,6 +90,15 @@ class TrainConfig:
     network_input: str | None = None
     """The ``cade`` mode's transform, when not the paper's (``cade-floor``: the contrast-floor
     lever, :data:`~cade_cli.spectral.CONTRAST_FLOOR`); None: the mode's own."""
+    architecture: str = "cadenet"
+    """The network (:data:`~cade_cli.train.model.ARCHITECTURES`): ``cadenet`` (3D
+    aggregation, every model up to cade-v8) or ``cadenet2d`` (the all-2D generation)."""
+    width2d: int = 48
+    """``cadenet2d``: the 2D U-Net's channels at 1/4 resolution."""
+    full_refinement: int = 0
+    """``cadenet2d``: channels of a full-resolution refinement after the 1/2-level one (0: none)."""
+    validate_rgb: bool = False
+    """Also validate on Middlebury's same-band tasks (the ``*-rgb`` sets of :func:`validation_sets`)."""
     time_budget_s: float | None = None
     """Leave the loop, checkpointed, once this many seconds have passed in this process
     (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""
@@ -161,10 +171,10 @@ def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, 
 
 
 @torch.no_grad()
-def predict(net: CadeNet, left: np.ndarray, right: np.ndarray, device: str) -> np.ndarray:
+def predict(net: torch.nn.Module, left: np.ndarray, right: np.ndarray, device: str) -> np.ndarray:
     """(H, W) float32 disparity (px) of one pair of CADE bands (H, W), any size: padded as the
     runtime pads (:func:`cade_cli.matching.network.pad_to_divisor`), then cropped back."""
-    padded = [pad_to_divisor(band, DIVISOR)[0] for band in (left, right)]
+    padded = [pad_to_divisor(band, getattr(net, "divisor", DIVISOR))[0] for band in (left, right)]
     tensors = [torch.from_numpy(band)[None, None].to(device) for band in padded]
     disparity = net(*tensors)["disparity"][0, 0, : left.shape[0], : left.shape[1]]
     return disparity.cpu().numpy()
@@ -173,7 +183,9 @@ def predict(net: CadeNet, left: np.ndarray, right: np.ndarray, device: str) -> n
 def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
     """Fixed validation pairs: 24 generated CS pairs (seed 10**6 + i, never a training
     seed; made in the run's training mode; only with ``synthetic``) and, when ``data_dir``
-    holds them, Middlebury 2014 Q and Middlebury 2005 in the CS tasks R>B and B>R, downscaled
+    holds them, Middlebury 2014 Q and Middlebury 2005 in the CS tasks R>B and B>R (sets
+    ``*-cs``) and, with ``config.validate_rgb``, in the same-band tasks R>R, G>G and B>B
+    pooled (``*-rgb``; the benchmark's RGB protocol merges them by median instead), downscaled
     by powers of 2 until the scene's range fits the model, each band given as the runtime
     gives it to a network of this mode (:func:`~cade_cli.spectral.network_input`)."""
     import cv2
@@ -182,6 +194,7 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     from cade_cli.spectral import network_input
 
     kind = network_input_of(config.training_mode, config.network_input)
+    rgb = config.validate_rgb
     sets = {}
     if synthetic:
         pool = TexturePool([Path(folder) for folder in config.textures])
@@ -192,9 +205,9 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
         from cade_cli.data import get_dataset
         from cade_cli.matching.network import RANGE_MARGIN, pyramid_factor
 
-        for name, dataset, resolution in (("middlebury14Q-cs", "middlebury14", "Q"),
-                                          ("middlebury05-cs", "middlebury05", None)):
-            middlebury = []
+        for name, dataset, resolution in (("middlebury14Q", "middlebury14", "Q"),
+                                          ("middlebury05", "middlebury05", None)):
+            cross, same = [], []
             try:
                 scenes = list(get_dataset(dataset)(Path(config.data_dir), resolution=resolution))
             except CadeError:
@@ -204,13 +217,16 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
                 size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
                 left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
                 gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
-                for a, b in ((0, 2), (2, 0)):
-                    middlebury.append((network_input(left[..., a], kind), network_input(right[..., b], kind), gt))
-            sets[name] = middlebury
+                for tasks, pairs in ((((0, 2), (2, 0)), cross), (((0, 0), (1, 1), (2, 2)), same)):
+                    pairs.extend((network_input(left[..., a], kind), network_input(right[..., b], kind), gt)
+                                 for a, b in tasks)
+            sets[f"{name}-cs"] = cross
+            if rgb:
+                sets[f"{name}-rgb"] = same
     return sets
 
 
-def evaluate(net: CadeNet, pairs, device: str) -> tuple[float, float]:
+def evaluate(net: torch.nn.Module, pairs, device: str) -> tuple[float, float]:
     """EPE (px) and bad-3 (%) over all pixels with finite ground truth of all ``pairs``
     together (pooled: each pixel weighs the same), with the benchmark's metrics."""
     predictions, truths = zip(*((predict(net, left, right, device).ravel(), gt.ravel()) for left, right, gt in pairs))
@@ -231,14 +247,14 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     checkpoint_path = out / "last.pt"
     torch.manual_seed(config.seed)
-    net = CadeNet(config.levels, **design_of(asdict(config))).to(config.device)
+    net = network_of(asdict(config)).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
-    start, elapsed_before = 0, 0.0
+    start, elapsed_before, cpu_before = 0, 0.0, 0.0
     if resume and checkpoint_path.exists():
         state = torch.load(checkpoint_path, map_location=config.device, weights_only=False)
         net.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
-        start, elapsed_before = state["step"], state["elapsed_s"]
+        start, elapsed_before, cpu_before = state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
         torch.set_rng_state(state["torch_rng"])
     elif config.init:
         initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
@@ -249,13 +265,15 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log_path = out / "log.csv"
     new_log = not log_path.exists() or start == 0
+    with_cpu = new_log  # logs begun before the cpu_s column keep their columns
     if not new_log:  # a run killed between checkpoints logged steps it will now redo: drop them
         rows = log_path.read_text().splitlines(keepends=True)
         log_path.write_text("".join(rows[:1] + [row for row in rows[1:] if int(row.split(",", 1)[0]) <= start]))
+        with_cpu = "cpu_s" in rows[0]
     log = log_path.open("w" if new_log else "a", newline="")
     writer = csv.writer(log)
     if new_log:
-        writer.writerow(["step", "elapsed_s", "lr", "loss", "train_epe", "set", "val_epe", "val_bad3"])
+        writer.writerow(["step", "elapsed_s", "lr", "loss", "train_epe", "set", "val_epe", "val_bad3", "cpu_s"])
     validation = validation_sets(config)
     print(f"CadeNet: {parameter_count(net)} parameters; steps {start}..{config.steps}", flush=True)
 
@@ -264,7 +282,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         batch_size=None, num_workers=config.workers, persistent_workers=False, prefetch_factor=4 if config.workers else None,
         pin_memory=device_type == "cuda",
     )
-    started = time.time()
+    started, cpu_started = time.time(), time.process_time()
     running_loss, running_epe, seen = 0.0, 0.0, 0
     net.train()
     for step, batch in enumerate(batches, start=start):
@@ -289,9 +307,12 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         else:  # a batch without ground truth, or an overflow (bf16): one NaN step would poison the run
             print(f"step {done}: loss or gradient not finite (or no ground truth); step skipped", flush=True)
         elapsed = elapsed_before + time.time() - started
+        cpu = cpu_before + time.process_time() - cpu_started
+        cpu_column = [f"{cpu:.0f}"] if with_cpu else []
         if done % 50 == 0:
             writer.writerow([done, f"{elapsed:.0f}", f"{learning_rate(config, step):.2e}",
-                             f"{running_loss / max(seen, 1):.4f}", f"{running_epe / max(seen, 1):.3f}", "train", "", ""])
+                             f"{running_loss / max(seen, 1):.4f}", f"{running_epe / max(seen, 1):.3f}", "train", "", "",
+                             *cpu_column])
             log.flush()
             print(f"step {done} {elapsed:.0f}s loss {running_loss / max(seen, 1):.3f} "
                   f"epe {running_epe / max(seen, 1):.2f}", flush=True)
@@ -300,13 +321,13 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             net.eval()
             for name, pairs in validation.items():
                 epe, bad3 = evaluate(net, pairs, config.device)
-                writer.writerow([done, f"{elapsed:.0f}", "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}"])
+                writer.writerow([done, f"{elapsed:.0f}", "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}", *cpu_column])
                 print(f"  validation {name}: EPE {epe:.2f} bad3 {bad3:.1f}%", flush=True)
             log.flush()
             net.train()
         out_of_time = config.time_budget_s is not None and time.time() - started > config.time_budget_s
         if done % config.checkpoint_every == 0 or done in (config.steps, config.stop_after) or out_of_time:
-            save_checkpoint(checkpoint_path, net, optimizer, done, elapsed, config)
+            save_checkpoint(checkpoint_path, net, optimizer, done, elapsed, config, cpu)
         if out_of_time:
             print(f"time budget of {config.time_budget_s:.0f} s spent: stopped after step {done} (checkpointed)",
                   flush=True)
@@ -315,8 +336,11 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     return checkpoint_path
 
 
-def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, config: TrainConfig) -> None:
+def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, config: TrainConfig,
+                    cpu: float = 0.0) -> None:
+    """``elapsed``: wall-clock seconds of training so far; ``cpu``: CPU seconds of the training
+    process so far (all its threads; the data workers' only with ``workers`` 0)."""
     temporary = path.with_name(path.name + ".tmp")
     torch.save({"model": net.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "elapsed_s": elapsed,
-                "config": asdict(config), "torch_rng": torch.get_rng_state()}, temporary)
+                "cpu_s": cpu, "config": asdict(config), "torch_rng": torch.get_rng_state()}, temporary)
     os.replace(temporary, path)

@@ -222,6 +222,19 @@ class SecondScale(nn.Module):
         return 2.0 * F.interpolate(start + residual, size=coarse.shape[-2:], mode="bilinear", align_corners=False)
 
 
+def soft_argmin(logits: torch.Tensor, size) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Logits (B, D, h, w) over the 1/4 level's disparities 0 .. D - 1 -> the distribution's
+    mean (B, 1, h, w; 1/4-level px), and its mean and standard deviation upsampled to
+    ``size`` in full-resolution px (x4): the ``coarse`` estimate and the ``uncertainty``."""
+    probability = torch.softmax(logits, dim=1)
+    levels = torch.arange(logits.shape[1], dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
+    mean = (probability * levels).sum(dim=1, keepdim=True)
+    variance = (probability * (levels - mean) ** 2).sum(dim=1, keepdim=True)
+    coarse = 4.0 * F.interpolate(mean, size=size, mode="bilinear", align_corners=False)
+    uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear", align_corners=False)
+    return mean, coarse, uncertainty
+
+
 class Refinement(nn.Module):
     """Full-resolution residual on the upsampled disparity, guided by the left band."""
 
@@ -299,15 +312,7 @@ class CadeNet(nn.Module):
         cost = groupwise_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
         if self.census:
             cost = torch.cat([cost, CENSUS_GAIN * census_cost(left, right, self.coarse_levels)], dim=1)
-        logits = self.aggregation(cost)
-        probability = torch.softmax(logits, dim=1)
-        levels = torch.arange(self.coarse_levels, dtype=probability.dtype, device=probability.device).view(1, -1, 1, 1)
-        mean = (probability * levels).sum(dim=1, keepdim=True)
-        variance = (probability * (levels - mean) ** 2).sum(dim=1, keepdim=True)
-        size = left.shape[-2:]
-        coarse = 4.0 * F.interpolate(mean, size=size, mode="bilinear", align_corners=False)
-        uncertainty = 4.0 * F.interpolate(variance.clamp_min(0).sqrt(), size=size, mode="bilinear",
-                                          align_corners=False)
+        _, coarse, uncertainty = soft_argmin(self.aggregation(cost), left.shape[-2:])
         out = {"coarse": coarse, "uncertainty": uncertainty}
         if self.second_scale is not None:
             out["half"] = self.second_scale(*half.chunk(2, dim=0), coarse)
@@ -347,6 +352,7 @@ LEGACY_DESIGN = {"padding": "replicate", "entry_kernel": 3, "channels3d": 8, "ce
 def design_of(config: dict) -> dict:
     """CadeNet keyword arguments recorded in a training config (old configs: :data:`LEGACY_DESIGN`)."""
     return {key: config.get(key, default) for key, default in LEGACY_DESIGN.items()}
+
 
 
 def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str, torch.Tensor]:

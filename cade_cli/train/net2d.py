@@ -1,0 +1,185 @@
+"""CadeNet2D: the CPU-native network generation (Accuracy III).
+
+Every stage is a 2D convolution, which onnxruntime runs about 2.3x faster per
+multiply-add than a 3x3x3 Conv3D on this project's CPUs, and which int8 quantisation
+can speed up further (models/README.md, "Accuracy III"):
+
+  features   2D CNN, CADE band -> 16 channels at 1/2 and ``features`` at 1/4 resolution;
+  cost       normalised group-wise correlation at 1/4 (each group of channels scaled to
+             unit length first, so the volume holds cosines: GraftNet's domain-robust
+             volume), ``groups`` x levels/4 channels;
+  aggregate  a 2D U-Net over 1/4, 1/8 and 1/16 (the volume's disparities are channels, as
+             in LightStereo and MobileStereoNet-2D), guided by the left features, ->
+             one logit per 1/4-level disparity;
+  regress    soft-argmin, and the spread of that distribution as the uncertainty;
+  refine     image-guided residual refinement at 1/2 (the right view's 1/2 features
+             warped by the estimate, one bilinear read; StereoNet/HITNet) and at full
+             resolution (the left band), each a small dilated 2D CNN.
+
+The weights depend on the searched width (``levels``: the volume's disparities are
+channels): one network searches 0 .. levels - 1 px, and wider spans run on a
+downscaled pair (the runtime's pyramid). Inputs: (B, 1, H, W) bands with H and W
+multiples of :data:`DIVISOR2D`.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from cade_cli.train.model import DISPARITY_SCALE, conv2d, shifted_right, soft_argmin
+
+DIVISOR2D = 16
+"""Input height and width must be multiples of this (the U-Net's 1/16 level)."""
+
+
+class Residual2D(nn.Module):
+    """Two 3x3 convolutions with a skip: x + f(x), then LeakyReLU."""
+
+    def __init__(self, channels: int, dilation: int = 1):
+        super().__init__()
+        self.body = nn.Sequential(conv2d(channels, channels, dilation=dilation),
+                                  nn.Conv2d(channels, channels, 3, padding=dilation, dilation=dilation, bias=False),
+                                  nn.BatchNorm2d(channels))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.leaky_relu(x + self.body(x), 0.1)
+
+
+class Features2D(nn.Module):
+    """(B, 1, H, W) -> (B, 16, H/2, W/2) and (B, C, H/4, W/4)."""
+
+    def __init__(self, channels: int = 32, blocks: int = 2):
+        super().__init__()
+        self.to_half = nn.Sequential(conv2d(1, 16, stride=2), conv2d(16, 16))
+        self.quarter = nn.Sequential(conv2d(16, channels, stride=2),
+                                     *[Residual2D(channels, 1 + i % 2) for i in range(blocks)],
+                                     nn.Conv2d(channels, channels, 3, padding=1))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        half = self.to_half(x)
+        return half, self.quarter(half)
+
+
+def normalised_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, groups: int) -> torch.Tensor:
+    """(B, groups * levels, h, w), disparity-major: the cosine of each channel group of
+    left(x) and right(x - d), d = 0 .. levels - 1 (0 where x - d is outside the right view)."""
+    batch, channels, height, width = left.shape
+
+    def unit(x: torch.Tensor) -> torch.Tensor:
+        grouped = x.view(batch, groups, channels // groups, height, width)
+        return (grouped / (grouped.pow(2).sum(dim=2, keepdim=True) + 1e-6).sqrt()).view(batch, channels, height, width)
+
+    left, right = unit(left), unit(right)
+    padded = F.pad(right, (levels - 1, 0))
+    slices = [(left * padded[..., levels - 1 - d:levels - 1 - d + width])
+              .view(batch, groups, channels // groups, height, width).sum(dim=2) for d in range(levels)]
+    return torch.cat(slices, dim=1)
+
+
+class UNet2D(nn.Module):
+    """Cost volume and left features at 1/4 -> logits (B, levels, h, w): a 2D U-Net with
+    levels at 1/4 (``width``), 1/8 (4/3 width) and 1/16 (2x width)."""
+
+    def __init__(self, inputs: int, levels: int, width: int = 48):
+        super().__init__()
+        mid, low = width * 4 // 3, width * 2
+        self.entry = nn.Sequential(nn.Conv2d(inputs, width, 1, bias=False), nn.BatchNorm2d(width),
+                                   nn.LeakyReLU(0.1, inplace=True), Residual2D(width))
+        self.down1 = nn.Sequential(conv2d(width, mid, stride=2), Residual2D(mid))
+        self.down2 = nn.Sequential(conv2d(mid, low, stride=2), Residual2D(low), Residual2D(low, 2))
+        self.up2 = nn.Sequential(nn.ConvTranspose2d(low, mid, 2, stride=2, bias=False), nn.BatchNorm2d(mid))
+        self.dec1 = Residual2D(mid)
+        self.up1 = nn.Sequential(nn.ConvTranspose2d(mid, width, 2, stride=2, bias=False), nn.BatchNorm2d(width))
+        self.dec0 = Residual2D(width)
+        self.exit = nn.Conv2d(width, levels, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x0 = self.entry(x)
+        x1 = self.down1(x0)
+        x1 = self.dec1(F.leaky_relu(x1 + self.up2(self.down2(x1)), 0.1))
+        return self.exit(self.dec0(F.leaky_relu(x0 + self.up1(x1), 0.1)))
+
+
+class HalfRefinement(nn.Module):
+    """The 1/2-level residual: the left 1/2 features, the difference of ``compared``
+    channels projected from both views' 1/2 features, the right ones read at the estimate
+    (one bilinear warp, on few channels: GridSample is slow on CPU), and the estimate ->
+    a residual in 1/2-level px."""
+
+    def __init__(self, features: int = 16, channels: int = 16, compared: int = 8):
+        super().__init__()
+        self.compare = nn.Conv2d(features, compared, 1)
+        self.net = nn.Sequential(conv2d(features + compared + 1, channels), conv2d(channels, channels, dilation=2),
+                                 conv2d(channels, channels, dilation=4), conv2d(channels, channels),
+                                 nn.Conv2d(channels, 1, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)  # start as the 1/4 level's estimate
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+        compared_left, compared_right = self.compare(torch.cat([left, right], dim=0)).chunk(2, dim=0)
+        difference = compared_left - shifted_right(compared_right, disparity)
+        guide = torch.cat([left, difference, disparity / (0.5 * DISPARITY_SCALE)], dim=1)
+        return disparity + self.net(guide)
+
+
+class FullRefinement(nn.Module):
+    """Full-resolution residual on the upsampled disparity, guided by the left band."""
+
+    def __init__(self, channels: int = 12):
+        super().__init__()
+        self.net = nn.Sequential(conv2d(2, channels), conv2d(channels, channels, dilation=2),
+                                 conv2d(channels, channels, dilation=4), conv2d(channels, channels),
+                                 nn.Conv2d(channels, 1, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, disparity: torch.Tensor, left: torch.Tensor) -> torch.Tensor:
+        return disparity + self.net(torch.cat([disparity / DISPARITY_SCALE, left], dim=1))
+
+
+class CadeNet2D(nn.Module):
+    """Stereo network on color-agnostic bands, all-2D (module docstring).
+
+    Args:
+        levels: searched width in full-resolution px (a multiple of 16): disparities
+            0 .. levels - 1; the volume holds levels/4 disparities of the 1/4 level.
+        features, groups: the 1/4 features' channels and the correlation's groups.
+        width: the U-Net's channels at 1/4.
+        half_channels, refine_channels: the 1/2 and full-resolution refinements' channels
+            (``refine_channels`` 0: no full-resolution stage, the 1/2 estimate upsampled).
+    """
+
+    divisor = DIVISOR2D
+
+    def __init__(self, levels: int = 192, features: int = 32, groups: int = 4, width: int = 48,
+                 half_channels: int = 16, refine_channels: int = 0, blocks: int = 2):
+        super().__init__()
+        if levels % DIVISOR2D:
+            raise ValueError(f"levels must be a multiple of {DIVISOR2D}, got {levels}")
+        self.levels, self.groups, self.coarse_levels = levels, groups, levels // 4
+        self.design = {"architecture": "cadenet2d", "features": features, "groups": groups, "width": width,
+                       "half_channels": half_channels, "refine_channels": refine_channels, "blocks": blocks}
+        self.features = Features2D(features, blocks)
+        self.aggregation = UNet2D(groups * self.coarse_levels + features, self.coarse_levels, width)
+        self.half_refinement = HalfRefinement(16, half_channels)
+        self.refinement = FullRefinement(refine_channels) if refine_channels else None
+
+    def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
+        """left, right: (B, 1, H, W) -> ``coarse`` (soft-argmin, upsampled), ``uncertainty``
+        (px), ``half`` (after the 1/2-level refinement, upsampled) and, with ``refine``,
+        ``disparity`` (after the full-resolution one); all (B, 1, H, W), full-resolution px."""
+        half, quarter = self.features(torch.cat([left, right], dim=0))
+        half_left, half_right = half.chunk(2, dim=0)
+        feat_left, feat_right = quarter.chunk(2, dim=0)
+        cost = normalised_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
+        size = left.shape[-2:]
+        mean, coarse, uncertainty = soft_argmin(self.aggregation(torch.cat([cost, feat_left], dim=1)), size)
+        start = 2.0 * F.interpolate(mean, size=half_left.shape[-2:], mode="bilinear", align_corners=False)
+        half_estimate = 2.0 * F.interpolate(self.half_refinement(half_left, half_right, start), size=size,
+                                            mode="bilinear", align_corners=False)
+        out = {"coarse": coarse, "uncertainty": uncertainty, "half": half_estimate}
+        if refine:
+            out["disparity"] = half_estimate if self.refinement is None else self.refinement(half_estimate, left)
+        return out

@@ -1,0 +1,107 @@
+"""CadeNet2D, the all-2D network generation: its volume, shapes, training, export and the
+runtime running its card (skipped where torch is not installed)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
+from cade_cli.train.fit import TrainConfig, predict, train  # noqa: E402
+from cade_cli.train.networks import network_of  # noqa: E402
+from cade_cli.train.net2d import DIVISOR2D, CadeNet2D, HalfRefinement, normalised_correlation  # noqa: E402
+
+
+def _with_batch_statistics(net: torch.nn.Module) -> torch.nn.Module:
+    for module in net.modules():  # non-trivial batch-norm statistics
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-0.1, 0.1)
+            module.running_var.uniform_(0.5, 1.5)
+    return net.eval()
+
+
+def test_the_normalised_volume_holds_cosines_and_peaks_at_the_shift():
+    generator = torch.Generator().manual_seed(0)
+    right = torch.randn(1, 8, 6, 40, generator=generator)
+    shift = 5
+    left = 3.0 * torch.roll(right, shift, dims=-1)  # left(x) = 3 right(x - shift): a scaled copy
+    volume = normalised_correlation(left, right, levels=9, groups=2).view(1, 9, 2, 6, 40)
+    inside = volume[..., shift + 1:]  # columns whose match at every level is inside the right view
+    assert torch.allclose(inside[:, shift], torch.ones_like(inside[:, shift]), atol=1e-4)  # cosine 1, whatever the gain
+    assert (inside.argmax(dim=1) == shift).all()
+    assert inside.abs().max() <= 1.0 + 1e-5
+    assert (volume[..., :1][:, 1:] == 0).all()  # no right pixel at x - d < 0: zero
+
+
+def test_the_2d_network_shapes_and_its_divisor():
+    net = CadeNet2D(levels=32, width=16).eval()
+    left, right = torch.rand(2, 1, 1, 48, 64).unbind(0)
+    with torch.no_grad():
+        out = net(left, right)
+    assert set(out) == {"coarse", "uncertainty", "half", "disparity"}
+    assert all(value.shape == (1, 1, 48, 64) for value in out.values())
+    assert torch.equal(out["disparity"], out["half"])  # no full-resolution stage by default
+    assert 0 <= float(out["coarse"].min()) and float(out["coarse"].max()) <= 32 - 4
+    with pytest.raises(ValueError, match="multiple of 16"):
+        CadeNet2D(levels=40)
+    assert CadeNet2D(levels=32, refine_channels=4).refinement is not None
+
+
+def test_the_half_refinement_starts_as_its_input_and_reads_the_right_view_at_the_estimate():
+    stage = HalfRefinement(features=4, channels=8).eval()
+    left, right = torch.rand(2, 1, 4, 16, 24).unbind(0)
+    estimate = torch.full((1, 1, 16, 24), 3.0)
+    assert torch.equal(stage(left, right, estimate), estimate)  # zero-initialised last layer
+
+
+def test_a_config_names_its_architecture():
+    config = TrainConfig(out="x", textures=[], levels=32, architecture="cadenet2d", width2d=16, full_refinement=4)
+    net = network_of(vars(config))
+    assert isinstance(net, CadeNet2D) and net.design["width"] == 16 and net.design["refine_channels"] == 4
+    with pytest.raises(ValueError, match="architecture"):
+        network_of({**vars(config), "architecture": "nope"})
+
+
+def test_onnx_agrees_with_torch(tmp_path: Path):
+    net = _with_batch_statistics(CadeNet2D(levels=32, width=16, refine_channels=4))
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path)
+    assert verify_onnx(net, path, sizes=((48, 64), (80, 208))) < 1e-3
+
+
+def test_a_2d_run_trains_resumes_exports_one_variant_and_the_runtime_runs_its_card(tmp_path: Path, monkeypatch):
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=3, batch=1, height=48, width=64, levels=32,
+                         workers=0, validate_every=3, checkpoint_every=2, stop_after=2, architecture="cadenet2d",
+                         width2d=16)
+    train(config)
+    config.stop_after = None
+    checkpoint = train(config)  # resumes at step 2
+    state = torch.load(checkpoint, weights_only=False)
+    assert state["step"] == 3 and state["config"]["architecture"] == "cadenet2d"
+
+    card = export_checkpoint(checkpoint, tmp_path / "tiny2d.onnx", tmp_path / "tiny2d.json")
+    assert card["divisor"] == DIVISOR2D and [v["levels"] for v in card["variants"]] == [32]
+    assert card["architecture"].startswith("CadeNet2D") and card["onnx_vs_torch_max_abs_diff"] < 1e-3
+    assert json.loads((tmp_path / "tiny2d.json").read_text())["design"]["architecture"] == "cadenet2d"
+
+    from cade_cli.matching.base import DisparityRange
+    from cade_cli.matching.network import NetworkStage
+
+    rng = np.random.default_rng(0)
+    left, right = rng.random((2, 50, 70), dtype=np.float32)  # not multiples of the divisor: padded, cropped
+    got = NetworkStage(str(tmp_path / "tiny2d.json")).estimate(left, right, DisparityRange(0, 20))
+    assert got.disparity.shape == (50, 70) and np.isfinite(got.disparity).all()
+    wide = NetworkStage(str(tmp_path / "tiny2d.json")).estimate(left, right, DisparityRange(0, 40))
+    assert wide.disparity.shape == (50, 70)  # a span beyond the one variant runs on the pyramid
+
+
+def test_validation_predicts_with_the_networks_own_divisor():
+    net = CadeNet2D(levels=32, width=16).eval()
+    rng = np.random.default_rng(1)
+    left, right = rng.random((2, 40, 50), dtype=np.float32)  # padded to 48 x 64, not to 40 x 56
+    assert predict(net, left, right, "cpu").shape == (40, 50)
