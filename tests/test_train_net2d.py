@@ -43,7 +43,8 @@ def test_the_2d_network_shapes_and_its_divisor():
     left, right = torch.rand(2, 1, 1, 48, 64).unbind(0)
     with torch.no_grad():
         out = net(left, right)
-    assert set(out) == {"coarse", "uncertainty", "half", "disparity"}
+    assert set(out) == {"coarse", "uncertainty", "half", "disparity", "features"}
+    assert out.pop("features").shape == (1, 32, 12, 16)
     assert all(value.shape == (1, 1, 48, 64) for value in out.values())
     assert torch.equal(out["disparity"], out["half"])  # no full-resolution stage by default
     assert 0 <= float(out["coarse"].min()) and float(out["coarse"].max()) <= 32 - 4
@@ -105,3 +106,33 @@ def test_validation_predicts_with_the_networks_own_divisor():
     rng = np.random.default_rng(1)
     left, right = rng.random((2, 40, 50), dtype=np.float32)  # padded to 48 x 64, not to 40 x 56
     assert predict(net, left, right, "cpu").shape == (40, 50)
+
+
+def test_the_data_levers_are_drawn_only_when_on_and_feed_the_consistency_loss(tmp_path: Path):
+    from cade_cli.train.fit import GeneratedBatches
+
+    base = TrainConfig(out="x", textures=[], batch=2, height=48, width=64, levels=32, architecture="cadenet2d",
+                       width2d=16)
+    plain = GeneratedBatches(base)[3]
+    assert "left_alt" not in plain
+    levers = GeneratedBatches(TrainConfig(**{**vars(base), "feature_consistency": 0.1, "scene_range": 0.2,
+                                             "eraser": 1.0, "misaligned": 1.0, "misaligned_offset": 2.0}))[3]
+    assert levers["left_alt"].shape == levers["left"].shape
+    assert not torch.equal(levers["left_alt"], levers["left"])  # another band of the same view
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=48, width=64, levels=32,
+                         workers=0, validate_every=100, architecture="cadenet2d", width2d=16,
+                         feature_consistency=0.1, eraser=0.5, scene_range=0.25)
+    assert torch.load(train(config), weights_only=False)["step"] == 2
+    with pytest.raises(ValueError, match="cadenet2d"):
+        train(TrainConfig(**{**vars(config), "architecture": "cadenet", "out": str(tmp_path / "other")}))
+
+
+def test_the_consistency_loss_is_zero_for_the_same_band_and_positive_for_another():
+    from cade_cli.train.fit import feature_consistency
+
+    net = CadeNet2D(levels=32, width=16).eval()
+    left = torch.rand(1, 1, 48, 64)
+    with torch.no_grad():
+        features = net(left, left)["features"]
+        assert float(feature_consistency(net, features, left)) < 1e-5
+        assert float(feature_consistency(net, features, 1.0 - left)) > 1e-3

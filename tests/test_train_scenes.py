@@ -284,3 +284,23 @@ def test_learning_curves_chain_runs_by_their_init_and_draw_one_picture(tmp_path)
     pytest.importorskip("matplotlib")
     plot(list(runs.values()), tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 10_000
+
+
+def test_the_eraser_paints_the_right_view_and_unmarks_the_pixels_that_matched_there():
+    from cade_cli.train.scenes import StereoScene, erased
+
+    rng = np.random.default_rng(0)
+    height, width = 120, 160
+    disparity = np.full((height, width), 10.0, np.float32)
+    scene = StereoScene(rng.random((height, width, 3), dtype=np.float32), rng.random((height, width, 3), dtype=np.float32),
+                        disparity, np.ones((height, width), bool))
+    assert erased(scene, rng, 0.0) is scene
+    out = erased(scene, np.random.default_rng(1), 1.0)
+    painted = np.any(out.right != scene.right, axis=2)
+    assert 400 <= painted.sum() <= 2 * 100 * 100
+    assert np.allclose(out.right[painted], scene.right.reshape(-1, 3).mean(axis=0), atol=1e-6)  # the mean colour
+    matched_painted = np.zeros_like(painted)
+    matched_painted[:, 10:] = painted[:, :-10]  # left (y, x) matches right (y, x - 10)
+    np.testing.assert_array_equal(out.nonoccluded, ~matched_painted)
+    np.testing.assert_array_equal(out.left, scene.left)
+    np.testing.assert_array_equal(out.disparity, scene.disparity)

@@ -71,6 +71,15 @@ def fit(
     width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution.")] = 48,
     full_refinement: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a full-resolution refinement "
                                                  "(0: none; the 1/2-level estimate upsampled).")] = 0,
+    scene_range: Annotated[float, typer.Option(min=0.01, max=1.0, help="Rendered scenes span (LEVELS - 1) x s, s "
+                                               "drawn log-uniformly from [SCENE_RANGE, 1] (1: the whole range).")]
+    = 1.0,
+    eraser: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of pairs whose right view gets 1-2 "
+                                          "rectangles painted over (occlusion augmentation).")] = 0.0,
+    misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
+                                                     "px.")] = 1.0,
+    feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
+                                                       "consistency loss (cadenet2d; 0: off).")] = 0.0,
     validate_rgb: Annotated[bool, typer.Option(help="Also validate on Middlebury's same-band tasks (R>R, G>G, "
                                                "B>B), for the RGB curves.")] = False,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
@@ -105,7 +114,9 @@ def fit(
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
                          network_input=network_input, architecture=architecture, width2d=width2d,
-                         full_refinement=full_refinement, validate_rgb=validate_rgb)
+                         full_refinement=full_refinement, validate_rgb=validate_rgb, scene_range=scene_range,
+                         eraser=eraser, misaligned_offset=misaligned_offset,
+                         feature_consistency=feature_consistency)
     train(config, resume=resume)
 
 

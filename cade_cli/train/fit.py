@@ -25,7 +25,7 @@ from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES, network_input_of
 from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
-from cade_cli.train.scenes import Misalignment, TexturePool, render_scene
+from cade_cli.train.scenes import Misalignment, TexturePool, erased, render_scene
 
 
 @dataclass
@@ -97,6 +97,18 @@ class TrainConfig:
     """``cadenet2d``: the 2D U-Net's channels at 1/4 resolution."""
     full_refinement: int = 0
     """``cadenet2d``: channels of a full-resolution refinement after the 1/2-level one (0: none)."""
+    scene_range: float = 1.0
+    """Rendered scenes limit their disparities to ``(levels - 1) * s``, s drawn log-uniformly
+    from [``scene_range``, 1] per scene (1: every scene spans the whole range, as before):
+    small and large baselines both, instead of a range mostly filled with near objects."""
+    eraser: float = 0.0
+    """Share of pairs whose right view gets 1-2 rectangles painted over (:func:`~cade_cli.train.scenes.erased`)."""
+    misaligned_offset: float = 1.0
+    """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
+    feature_consistency: float = 0.0
+    """Weight of the cross-spectral feature-consistency loss (FCStereo-style): the 1/4
+    features of the left view in two different bands pulled together (1 - cosine); the
+    ``cadenet2d`` architecture only. 0: off (no second band is drawn)."""
     validate_rgb: bool = False
     """Also validate on Middlebury's same-band tasks (the ``*-rgb`` sets of :func:`validation_sets`)."""
     time_budget_s: float | None = None
@@ -127,21 +139,29 @@ class GeneratedBatches(torch.utils.data.Dataset):
 def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig):
     """One CADE training pair: cut from a real scene with probability ``config.real_share``
     (no random draw for that when the share is 0, so earlier runs reproduce), else rendered."""
+    second_left = config.feature_consistency > 0
     if real is not None and rng.random() < config.real_share:
-        scene = real.draw(rng, config.height, config.width, limit=config.levels - 1)
-        return mode_pair(scene, rng, config.training_mode, config.network_input)
+        scene = erased(real.draw(rng, config.height, config.width, limit=config.levels - 1), rng, config.eraser)
+        return mode_pair(scene, rng, config.training_mode, config.network_input, second_left=second_left)
     return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned,
-                          mode=config.training_mode, kind=config.network_input)
+                          mode=config.training_mode, kind=config.network_input, scene_range=config.scene_range,
+                          misaligned_offset=config.misaligned_offset, eraser=config.eraser, second_left=second_left)
 
 
 def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
-                   misaligned: float = 0.0, mode: str = "cade", kind: str | None = None):
+                   misaligned: float = 0.0, mode: str = "cade", kind: str | None = None, scene_range: float = 1.0,
+                   misaligned_offset: float = 1.0, eraser: float = 0.0, second_left: bool = False):
     """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
-    disparities below ``levels - 1`` px; a share ``misaligned`` of the pairs has a vertically
-    misaligned right view."""
-    scene = render_scene(rng, height, width, limit=levels - 1, textures=pool,
-                         misalignment=Misalignment(share=misaligned))
-    return mode_pair(scene, rng, mode, kind)
+    disparities below ``levels - 1`` px (times a per-scene share drawn from
+    [``scene_range``, 1] when that is below 1); a share ``misaligned`` of the pairs has a
+    vertically misaligned right view (by up to ``misaligned_offset`` px), a share
+    ``eraser`` an erased patch (:func:`~cade_cli.train.scenes.erased`)."""
+    limit = levels - 1
+    if scene_range < 1:  # no draw otherwise: earlier runs' scenes unchanged
+        limit *= float(np.exp(rng.uniform(np.log(scene_range), 0.0)))
+    scene = render_scene(rng, height, width, limit=limit, textures=pool,
+                         misalignment=Misalignment(share=misaligned, offset=misaligned_offset))
+    return mode_pair(erased(scene, rng, eraser), rng, mode, kind, second_left=second_left)
 
 
 def collate(pairs) -> dict[str, torch.Tensor]:
@@ -150,6 +170,8 @@ def collate(pairs) -> dict[str, torch.Tensor]:
         "right": torch.from_numpy(np.stack([p.right for p in pairs])[:, None]),
         "disparity": torch.from_numpy(np.stack([p.disparity for p in pairs])[:, None]),
         "nonoccluded": torch.from_numpy(np.stack([p.nonoccluded for p in pairs])[:, None]),
+        **({"left_alt": torch.from_numpy(np.stack([p.left_alt for p in pairs])[:, None])}
+           if pairs[0].left_alt is not None else {}),
     }
 
 
@@ -168,6 +190,13 @@ def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, 
     if "half" in out:  # the second scale's estimate is supervised like the 1/4 level's
         coarse = coarse + F.smooth_l1_loss(out["half"][mask], target[mask])
     return fine + coarse_weight * coarse, mask
+
+
+def feature_consistency(net: torch.nn.Module, features: torch.Tensor, left_alt: torch.Tensor) -> torch.Tensor:
+    """1 - cosine, averaged over pixels, between the left view's 1/4 features (``features``,
+    from the forward pass) and those of the same view in another band (``left_alt``)."""
+    _, alt = net.features(left_alt)
+    return (1.0 - F.cosine_similarity(features, alt, dim=1)).mean()
 
 
 @torch.no_grad()
@@ -239,6 +268,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
     if config.training_mode not in TRAINING_MODES:
         raise ValueError(f"unknown training mode {config.training_mode!r}; choose one of {', '.join(TRAINING_MODES)}")
+    if config.feature_consistency > 0 and config.architecture != "cadenet2d":
+        raise ValueError("the feature-consistency loss needs the cadenet2d architecture")
     torch.set_num_threads(config.threads)
     device_type = torch.device(config.device).type
     if device_type == "cuda":
@@ -293,6 +324,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             out_ = net(batch["left"], batch["right"])
             out_ = {key: value.float() for key, value in out_.items()}
             loss, mask = loss_terms(out_, batch["disparity"], config.levels, config.coarse_weight)
+            if config.feature_consistency > 0:
+                loss = loss + config.feature_consistency * feature_consistency(net, out_["features"], batch["left_alt"])
         optimizer.zero_grad(set_to_none=True)
         done = step + 1
         usable = bool(mask.any()) and bool(torch.isfinite(loss))

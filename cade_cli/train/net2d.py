@@ -169,7 +169,8 @@ class CadeNet2D(nn.Module):
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
         """left, right: (B, 1, H, W) -> ``coarse`` (soft-argmin, upsampled), ``uncertainty``
         (px), ``half`` (after the 1/2-level refinement, upsampled) and, with ``refine``,
-        ``disparity`` (after the full-resolution one); all (B, 1, H, W), full-resolution px."""
+        ``disparity`` (after the full-resolution one); all (B, 1, H, W), full-resolution px;
+        and the left view's 1/4 ``features`` (B, C, H/4, W/4), for the consistency loss."""
         half, quarter = self.features(torch.cat([left, right], dim=0))
         half_left, half_right = half.chunk(2, dim=0)
         feat_left, feat_right = quarter.chunk(2, dim=0)
@@ -179,7 +180,7 @@ class CadeNet2D(nn.Module):
         start = 2.0 * F.interpolate(mean, size=half_left.shape[-2:], mode="bilinear", align_corners=False)
         half_estimate = 2.0 * F.interpolate(self.half_refinement(half_left, half_right, start), size=size,
                                             mode="bilinear", align_corners=False)
-        out = {"coarse": coarse, "uncertainty": uncertainty, "half": half_estimate}
+        out = {"coarse": coarse, "uncertainty": uncertainty, "half": half_estimate, "features": feat_left}
         if refine:
             out["disparity"] = half_estimate if self.refinement is None else self.refinement(half_estimate, left)
         return out

@@ -55,6 +55,9 @@ class CadePair:
     disparity: np.ndarray
     nonoccluded: np.ndarray
     bands: tuple[str, str]
+    left_alt: np.ndarray | None = None
+    """The left view in a second band (drawn with ``second_left``): the same points in
+    another spectral mix, for the feature-consistency loss."""
 
 
 def both_views_bands(scene: StereoScene, rng: np.random.Generator) -> tuple[dict, dict]:
@@ -64,26 +67,37 @@ def both_views_bands(scene: StereoScene, rng: np.random.Generator) -> tuple[dict
             synthesize_bands(scene.right, np.random.default_rng(seed)))
 
 
-def cade_pair(scene: StereoScene, rng: np.random.Generator, kind: str = "cade") -> CadePair:
+def cade_pair(scene: StereoScene, rng: np.random.Generator, kind: str = "cade", *,
+              second_left: bool = False) -> CadePair:
     """Draw a left and a right band of ``scene`` independently and CADE-transform both
-    (``kind``: the network input, ``cade`` or the ``cade-floor`` lever)."""
+    (``kind``: the network input, ``cade`` or the ``cade-floor`` lever); with
+    ``second_left`` also another band of the left view (``left_alt``; drawn after the
+    others, so the pair itself is the one drawn without it)."""
     left_bands, right_bands = both_views_bands(scene, rng)
     left_name, right_name = (str(name) for name in rng.choice(BAND_NAMES, size=2))
+    left_alt = None
+    if second_left:
+        alt_name = str(rng.choice([name for name in BAND_NAMES if name != left_name]))
+        left_alt = network_input(left_bands[alt_name], kind)
     return CadePair(
         left=network_input(left_bands[left_name], kind),
         right=network_input(right_bands[right_name], kind),
         disparity=scene.disparity,
         nonoccluded=scene.nonoccluded,
         bands=(left_name, right_name),
+        left_alt=left_alt,
     )
 
 
-def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cade", kind: str | None = None) -> CadePair:
+def training_pair(scene: StereoScene, rng: np.random.Generator, mode: str = "cade", kind: str | None = None, *,
+                  second_left: bool = False) -> CadePair:
     """A pair of ``scene`` made in training ``mode`` (:data:`TRAINING_MODES`); ``cade`` is
     :func:`cade_pair` itself, drawing exactly the same random numbers (its transform
-    ``kind`` may be chosen: :func:`network_input_of`)."""
+    ``kind`` may be chosen: :func:`network_input_of`; ``second_left``: the ``cade`` mode only)."""
     if mode == "cade":
-        return cade_pair(scene, rng, network_input_of(mode, kind))
+        return cade_pair(scene, rng, network_input_of(mode, kind), second_left=second_left)
+    if second_left:
+        raise ValueError(f"a second left band is drawn in the cade training mode only, not {mode!r}")
     if kind:
         raise ValueError(f"a network input can be chosen in the cade training mode only, not {mode!r}")
     if mode not in TRAINING_MODES:

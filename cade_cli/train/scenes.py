@@ -16,7 +16,7 @@ other. No torch here: this module is plain NumPy/OpenCV and is tested like the r
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -89,6 +89,27 @@ class Misalignment:
 
 
 NO_MISALIGNMENT = Misalignment()
+
+
+def erased(scene: StereoScene, rng: np.random.Generator, share: float) -> StereoScene:
+    """With probability ``share``, 1 or 2 rectangles (20-100 px a side) of the right view
+    painted in that view's mean colour: left pixels whose match falls there must be found
+    from their context, as behind an occluder (RAFT-Stereo's "eraser"; no draw when
+    ``share`` is 0). The ground truth is unchanged; those pixels are no longer
+    ``nonoccluded``."""
+    if share <= 0 or rng.random() >= share:
+        return scene
+    right, nonoccluded = scene.right.copy(), scene.nonoccluded.copy()
+    height, width = right.shape[:2]
+    mean = right.reshape(-1, 3).mean(axis=0)
+    y, x = np.mgrid[0:height, 0:width]
+    lands = np.rint(x - np.nan_to_num(scene.disparity, nan=-1e6))  # the right column each left pixel matches
+    for _ in range(int(rng.integers(1, 3))):
+        h, w = (int(rng.integers(20, 101)) for _ in range(2))
+        top, left = int(rng.integers(max(1, height - h + 1))), int(rng.integers(max(1, width - w + 1)))
+        right[top:top + h, left:left + w] = mean
+        nonoccluded &= ~((y >= top) & (y < top + h) & (lands >= left) & (lands < left + w))
+    return replace(scene, right=right, nonoccluded=nonoccluded)
 
 
 NO_PHOTOMETRIC = Photometric((1.0, 1.0), (1.0, 1.0), (0.0, 0.0), (0.0, 0.0), 0.0)
