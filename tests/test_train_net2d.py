@@ -136,3 +136,26 @@ def test_the_consistency_loss_is_zero_for_the_same_band_and_positive_for_another
         features = net(left, left)["features"]
         assert float(feature_consistency(net, features, left)) < 1e-5
         assert float(feature_consistency(net, features, 1.0 - left)) > 1e-3
+
+
+def test_an_int8_twin_runs_in_the_runtime_and_stays_near_its_float_model(tmp_path: Path):
+    pytest.importorskip("onnxruntime.quantization")
+    from cade_cli.matching.base import DisparityRange
+    from cade_cli.matching.network import NetworkStage
+    from cade_cli.train.quantize import quantise_card
+
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=48, width=64, levels=32,
+                         workers=0, validate_every=100, architecture="cadenet2d", width2d=16)
+    export_checkpoint(train(config), tmp_path / "f32.onnx", tmp_path / "f32.json")
+    card = quantise_card(tmp_path / "f32.json", tmp_path / "q8.json", [], count=2)
+    assert card["quantised"]["from"] == "f32.json" and card["variants"][0]["file"] == "f32-int8.onnx"
+    import onnx
+
+    ops = {node.op_type for node in onnx.load(str(tmp_path / "f32-int8.onnx")).graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear"} <= ops
+    rng = np.random.default_rng(0)
+    left, right = rng.random((2, 48, 64), dtype=np.float32)
+    results = [NetworkStage(str(tmp_path / name)).estimate(left, right, DisparityRange(0, 20)).disparity
+               for name in ("f32.json", "q8.json")]
+    assert np.isfinite(results[1]).all()
+    assert np.abs(results[0] - results[1]).mean() < 2.0  # px: int8 rounding, not another network

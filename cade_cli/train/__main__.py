@@ -146,6 +146,22 @@ def export(
 
 
 @app.command()
+def quantise(
+    card: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="An exported model's card (.json).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="The int8 card to write; its ONNX files go beside it.")],
+    textures: Annotated[list[Path], typer.Option(help="Texture folders for the generated calibration pairs.")] = [],
+    count: Annotated[int, typer.Option(min=1, help="Calibration pairs.")] = 16,
+) -> None:
+    """Write a static int8 (QDQ) twin of CARD's network, calibrated on generated pairs."""
+    from cade_cli.train.quantize import quantise_card
+
+    quantised = quantise_card(card, out, [str(t) for t in textures], count=count)
+    for variant in quantised["variants"]:
+        print(f"wrote {out.with_name(variant['file'])} ({variant['levels']} levels), sha256 {variant['sha256']}")
+    print(f"wrote {out}")
+
+
+@app.command()
 def curves(
     runs: Annotated[list[Path], typer.Argument(exists=True, file_okay=False, help="Run folders, ancestors first.")],
     output: Annotated[Path, typer.Option("--output", "-o", help="PNG to write.")] = Path("docs/learning-curves.png"),
