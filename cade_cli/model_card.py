@@ -10,9 +10,9 @@ A card is a JSON file ``<name>.json`` in the model folder::
 Each variant is the same weights exported with another search width: ``levels`` is the
 number of disparities the network's cost volume spans, so it searches
 0 .. ``levels`` - 1 px (inclusive bound ``levels - 1``). Only ``format``, ``divisor``,
-``variants`` and the optional ``chooser`` (weights of the learned choice between the
-network and the refinement's match, written by ``python -m cade_cli.train chooser``) are
-read back; the other fields document the model.
+``variants``, ``input``, the optional ``chooser`` (weights of the learned choice between the
+network and the refinement's match, written by ``python -m cade_cli.train chooser``) and
+``runtime_refinement`` are read back; the other fields document the model.
 """
 
 from __future__ import annotations
@@ -71,6 +71,14 @@ class ModelCard:
     """How each band is given to the network (:data:`cade_cli.spectral.NETWORK_INPUTS`): its
     color agnostic transform (every shipped model, and cards without the field), or rescaled
     to [0, 1] (the training ablation's pristine and CSDL models)."""
+    refinement: str = "rank-sgbm"
+    """What the ``cade`` matcher does after the network (:data:`RUNTIME_REFINEMENTS`, the
+    card's ``runtime_refinement``): SGBM of the rank-transformed raw bands (every card
+    before Accuracy III, and cards without the field), or nothing (``none``: the network's
+    map is the answer, at the network's speed)."""
+
+
+RUNTIME_REFINEMENTS = ("rank-sgbm", "none")
 
 
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
@@ -117,7 +125,10 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         network_input = card.get("input", "cade")
         if network_input not in NETWORK_INPUTS:
             raise ValueError(f"input {network_input!r} is not one of {', '.join(NETWORK_INPUTS)}")
-        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input)
+        refinement = card.get("runtime_refinement", "rank-sgbm")
+        if refinement not in RUNTIME_REFINEMENTS:
+            raise ValueError(f"runtime_refinement {refinement!r} is not one of {', '.join(RUNTIME_REFINEMENTS)}")
+        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

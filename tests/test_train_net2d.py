@@ -159,3 +159,24 @@ def test_an_int8_twin_runs_in_the_runtime_and_stays_near_its_float_model(tmp_pat
                for name in ("f32.json", "q8.json")]
     assert np.isfinite(results[1]).all()
     assert np.abs(results[0] - results[1]).mean() < 2.0  # px: int8 rounding, not another network
+
+
+def test_a_card_without_runtime_refinement_returns_the_networks_map(tmp_path: Path):
+    from cade_cli.matching import get_matcher
+    from cade_cli.matching.base import DisparityRange
+    from cade_cli.matching.network import NetworkStage
+
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=48, width=64, levels=32,
+                         workers=0, validate_every=100, architecture="cadenet2d", width2d=16)
+    checkpoint = train(config)
+    export_checkpoint(checkpoint, tmp_path / "plain.onnx", tmp_path / "plain.json", runtime_refinement="none")
+    export_checkpoint(checkpoint, tmp_path / "sgbm.onnx", tmp_path / "sgbm.json")
+    rng = np.random.default_rng(2)
+    left = rng.random((48, 96), dtype=np.float32)
+    right = np.roll(left, -6, axis=1)
+    disparity_range = DisparityRange(0, 24)
+    network = NetworkStage(str(tmp_path / "plain.json"))(left, right, disparity_range)
+    plain = get_matcher("cade", model=str(tmp_path / "plain.json")).kernel(left, right, disparity_range)
+    refined = get_matcher("cade", model=str(tmp_path / "sgbm.json")).kernel(left, right, disparity_range)
+    np.testing.assert_array_equal(plain.disparity[plain.valid], network[plain.valid])
+    assert not np.array_equal(refined.disparity[refined.valid], network[refined.valid])  # SGBM took its matches

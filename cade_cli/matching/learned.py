@@ -34,7 +34,8 @@ class LearnedPipeline:
 
     Attributes:
         network: the network stage (which model, from which folder).
-        refinement: the full-resolution refinement; None returns the network's map.
+        refinement: the full-resolution refinement; None returns the network's map, and so
+            does a card whose ``runtime_refinement`` is ``none``.
         confidence: compute the confidence (False: ``DisparityResult.confidence`` is
             None; the disparity and validity are the same either way).
     """
@@ -53,7 +54,7 @@ class LearnedPipeline:
         # corrections would scatter it. Occluded pixels have nothing to match: not refined.
         valid = visible_in_right_view(network)
         disparity, agreement = network, None
-        if self.refinement is not None:
+        if self.refinement is not None and self.network.card().refinement != "none":
             weights = self.network.card().chooser  # the card's learned choice, else the 32 px rule
             chooser = Chooser.from_dict(weights) if weights is not None else None
             choose = None if chooser is None else (

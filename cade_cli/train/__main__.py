@@ -128,16 +128,25 @@ def export(
     output: Annotated[str, typer.Option(help="The disparity output: disparity (after the refinement net; "
                                              "shipped) or coarse (soft-argmin upsampled: faster, less accurate).")]
     = "disparity",
+    runtime_refinement: Annotated[str, typer.Option(help="What the cade matcher does after this network: rank-sgbm "
+                                                    "(SGBM of the rank-transformed bands; every model before "
+                                                    "Accuracy III) or none (the network's map as it is).")]
+    = "rank-sgbm",
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
     against PyTorch, write the JSON card beside them."""
     from cade_cli.train.export import export_checkpoint
     from cade_cli.train.model import EXPORT_OUTPUTS
 
+    from cade_cli.model_card import RUNTIME_REFINEMENTS
+
     if output not in EXPORT_OUTPUTS:
         raise typer.BadParameter(f"must be one of {', '.join(EXPORT_OUTPUTS)}", param_hint="--output")
+    if runtime_refinement not in RUNTIME_REFINEMENTS:
+        raise typer.BadParameter(f"must be one of {', '.join(RUNTIME_REFINEMENTS)}", param_hint="--runtime-refinement")
     card = export_checkpoint(checkpoint, onnx_path, onnx_path.with_suffix(".json"),
-                             extra={"hardware": hardware} if hardware else None, output=output)
+                             extra={"hardware": hardware} if hardware else None, output=output,
+                             runtime_refinement=runtime_refinement)
     for variant in card["variants"]:
         path = onnx_path.with_name(variant["file"])
         print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, {variant['levels']} levels), "

@@ -109,7 +109,8 @@ def architecture_text(net, output: str) -> str:
 
 
 def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None,
-                      other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity") -> dict:
+                      other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity",
+                      runtime_refinement: str = "rank-sgbm") -> dict:
     """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
 
     The trained width goes to ``onnx_path``, another width of R levels (disparities
@@ -133,5 +134,6 @@ def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, ext
         output=output, parameters=parameter_count(net), design=net.design, inputs=INPUT_NAMES, outputs=OUTPUT_NAMES,
         input=network_input, input_transform=INPUT_TRANSFORMS[network_input], opset=OPSET,
         onnx_vs_torch_max_abs_diff=max_difference, steps=state["step"], train_wall_time_s=round(state["elapsed_s"]),
+        train_cpu_time_s=round(state.get("cpu_s", 0.0)), runtime_refinement=runtime_refinement,
         train_config=state["config"], **(extra or {}),
     )
