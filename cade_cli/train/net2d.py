@@ -10,7 +10,8 @@ can speed up further (models/README.md, "Accuracy III"):
              volume), ``groups`` x levels/4 channels;
   aggregate  a 2D U-Net over 1/4, 1/8 and 1/16 (the volume's disparities are channels, as
              in LightStereo and MobileStereoNet-2D), guided by the left features, ->
-             one logit per 1/4-level disparity;
+             one logit per 1/4-level disparity, added to a correlation prior (the mean
+             cosine, times a learned gain: :data:`PRIOR_GAIN`);
   regress    soft-argmin, and the spread of that distribution as the uncertainty;
   refine     image-guided residual refinement at 1/2 (the right view's 1/2 features
              warped by the estimate, one bilinear read; StereoNet/HITNet) and at full
@@ -32,6 +33,13 @@ from cade_cli.train.model import DISPARITY_SCALE, conv2d, shifted_right, soft_ar
 
 DIVISOR2D = 16
 """Input height and width must be multiples of this (the U-Net's 1/16 level)."""
+PRIOR_GAIN = 8.0
+"""Initial weight of the correlation prior in the logits (learned): the volume's mean cosine
+over groups, in [-1, 1], times this. The U-Net's output is added to it and starts at zero,
+so an untrained network is already a soft winner-takes-all matcher of its features, and the
+U-Net learns the aggregation as a residual: the 2D net has no built-in sliding along
+disparity, and without this prior it spent its first 700 steps predicting about the
+range's middle (train EPE 33 px at step 500; models/README.md, "Session 17")."""
 
 
 class Residual2D(nn.Module):
@@ -94,6 +102,8 @@ class UNet2D(nn.Module):
         self.up1 = nn.Sequential(nn.ConvTranspose2d(mid, width, 2, stride=2, bias=False), nn.BatchNorm2d(width))
         self.dec0 = Residual2D(width)
         self.exit = nn.Conv2d(width, levels, 3, padding=1)
+        nn.init.zeros_(self.exit.weight)  # start as the correlation prior alone (CadeNet2D.forward)
+        nn.init.zeros_(self.exit.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x0 = self.entry(x)
@@ -163,6 +173,7 @@ class CadeNet2D(nn.Module):
                        "half_channels": half_channels, "refine_channels": refine_channels, "blocks": blocks}
         self.features = Features2D(features, blocks)
         self.aggregation = UNet2D(groups * self.coarse_levels + features, self.coarse_levels, width)
+        self.prior_gain = nn.Parameter(torch.tensor(PRIOR_GAIN))
         self.half_refinement = HalfRefinement(16, half_channels)
         self.refinement = FullRefinement(refine_channels) if refine_channels else None
 
@@ -176,7 +187,10 @@ class CadeNet2D(nn.Module):
         feat_left, feat_right = quarter.chunk(2, dim=0)
         cost = normalised_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
         size = left.shape[-2:]
-        mean, coarse, uncertainty = soft_argmin(self.aggregation(torch.cat([cost, feat_left], dim=1)), size)
+        batch, _, height, width = cost.shape
+        prior = cost.view(batch, self.coarse_levels, self.groups, height, width).mean(dim=2)
+        logits = self.prior_gain * prior + self.aggregation(torch.cat([cost, feat_left], dim=1))
+        mean, coarse, uncertainty = soft_argmin(logits, size)
         start = 2.0 * F.interpolate(mean, size=half_left.shape[-2:], mode="bilinear", align_corners=False)
         half_estimate = 2.0 * F.interpolate(self.half_refinement(half_left, half_right, start), size=size,
                                             mode="bilinear", align_corners=False)
