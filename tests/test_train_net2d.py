@@ -180,3 +180,16 @@ def test_a_card_without_runtime_refinement_returns_the_networks_map(tmp_path: Pa
     refined = get_matcher("cade", model=str(tmp_path / "sgbm.json")).kernel(left, right, disparity_range)
     np.testing.assert_array_equal(plain.disparity[plain.valid], network[plain.valid])
     assert not np.array_equal(refined.disparity[refined.valid], network[refined.valid])  # SGBM took its matches
+
+
+def test_a_crop_schedule_grows_the_crops_at_its_steps_and_refuses_malformed_entries():
+    from cade_cli.train.fit import GeneratedBatches, crop_at, parse_crop_schedule
+
+    config = TrainConfig(out="x", textures=[], batch=1, height=64, width=96, levels=32,
+                         crop_schedule="0:64x64,3:64x128")
+    assert [crop_at(config, step) for step in (0, 2, 3, 9)] == [(64, 64), (64, 64), (64, 128), (64, 128)]
+    assert GeneratedBatches(config)[4]["left"].shape == (1, 1, 64, 128)
+    assert crop_at(TrainConfig(out="x", textures=[], height=64, width=96), 5) == (64, 96)
+    for bad in ("0:64x60", "5:64x64,2:64x64", "64x64", "0:axb"):
+        with pytest.raises(ValueError):
+            parse_crop_schedule(bad)

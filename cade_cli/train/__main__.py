@@ -80,6 +80,9 @@ def fit(
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
                                                        "consistency loss (cadenet2d; 0: off).")] = 0.0,
+    crop_schedule: Annotated[str | None, typer.Option(help="Progressive crops: STEP:HEIGHTxWIDTH,... (e.g. "
+                                                      "0:160x288,5000:192x320); default HEIGHT x WIDTH throughout.")]
+    = None,
     validate_rgb: Annotated[bool, typer.Option(help="Also validate on Middlebury's same-band tasks (R>R, G>G, "
                                                "B>B), for the RGB curves.")] = False,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
@@ -116,7 +119,7 @@ def fit(
                          network_input=network_input, architecture=architecture, width2d=width2d,
                          full_refinement=full_refinement, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, misaligned_offset=misaligned_offset,
-                         feature_consistency=feature_consistency)
+                         feature_consistency=feature_consistency, crop_schedule=crop_schedule)
     train(config, resume=resume)
 
 

@@ -109,6 +109,9 @@ class TrainConfig:
     """Weight of the cross-spectral feature-consistency loss (FCStereo-style): the 1/4
     features of the left view in two different bands pulled together (1 - cosine); the
     ``cadenet2d`` architecture only. 0: off (no second band is drawn)."""
+    crop_schedule: str | None = None
+    """Progressive crops, ``"STEP:HxW,..."`` (:func:`parse_crop_schedule`): small crops early
+    (cheap steps, local matching), larger ones later (context); None: ``height`` x ``width``."""
     validate_rgb: bool = False
     """Also validate on Middlebury's same-band tasks (the ``*-rgb`` sets of :func:`validation_sets`)."""
     time_budget_s: float | None = None
@@ -133,17 +136,51 @@ class GeneratedBatches(torch.utils.data.Dataset):
             self.pool = TexturePool([Path(folder) for folder in config.textures])
             self.real = RealScenes(Path(config.real_dir)) if config.real_share > 0 else None
         rng = np.random.default_rng([config.seed, step])
-        return collate([training_pair(rng, self.pool, self.real, config) for _ in range(config.batch)])
+        height, width = crop_at(config, step)
+        return collate([training_pair(rng, self.pool, self.real, config, height, width) for _ in range(config.batch)])
 
 
-def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig):
-    """One CADE training pair: cut from a real scene with probability ``config.real_share``
-    (no random draw for that when the share is 0, so earlier runs reproduce), else rendered."""
+def crop_at(config: TrainConfig, step: int) -> tuple[int, int]:
+    """The training crop (height, width) at ``step``: the last entry of ``config.crop_schedule``
+    that has begun, else ``config.height`` x ``config.width``."""
+    size = (config.height, config.width)
+    for begin, height, width in parse_crop_schedule(config.crop_schedule):
+        if step >= begin:
+            size = (height, width)
+    return size
+
+
+def parse_crop_schedule(text: str | None) -> list[tuple[int, int, int]]:
+    """``"0:160x288,5000:192x320"`` -> [(0, 160, 288), (5000, 192, 320)]: from each step on,
+    that crop (sides multiples of 16; steps increasing)."""
+    if not text:
+        return []
+    entries = []
+    for item in text.split(","):
+        try:
+            begin, size = item.split(":")
+            height, width = (int(side) for side in size.lower().split("x"))
+            entries.append((int(begin), height, width))
+        except ValueError:
+            raise ValueError(f"crop schedule entry {item!r} is not STEP:HEIGHTxWIDTH") from None
+        if height % 16 or width % 16 or height < 64 or width < 64:
+            raise ValueError(f"crop {height}x{width} must have sides of at least 64 that are multiples of 16")
+    if [begin for begin, _, _ in entries] != sorted({begin for begin, _, _ in entries}):
+        raise ValueError(f"crop schedule steps must increase: {text!r}")
+    return entries
+
+
+def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig,
+                  height: int | None = None, width: int | None = None):
+    """One CADE training pair of ``height`` x ``width`` (default: the config's): cut from a
+    real scene with probability ``config.real_share`` (no random draw for that when the
+    share is 0, so earlier runs reproduce), else rendered."""
+    height, width = height or config.height, width or config.width
     second_left = config.feature_consistency > 0
     if real is not None and rng.random() < config.real_share:
-        scene = erased(real.draw(rng, config.height, config.width, limit=config.levels - 1), rng, config.eraser)
+        scene = erased(real.draw(rng, height, width, limit=config.levels - 1), rng, config.eraser)
         return mode_pair(scene, rng, config.training_mode, config.network_input, second_left=second_left)
-    return generated_pair(rng, pool, config.height, config.width, config.levels, misaligned=config.misaligned,
+    return generated_pair(rng, pool, height, width, config.levels, misaligned=config.misaligned,
                           mode=config.training_mode, kind=config.network_input, scene_range=config.scene_range,
                           misaligned_offset=config.misaligned_offset, eraser=config.eraser, second_left=second_left)
 
@@ -268,6 +305,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
     if config.training_mode not in TRAINING_MODES:
         raise ValueError(f"unknown training mode {config.training_mode!r}; choose one of {', '.join(TRAINING_MODES)}")
+    parse_crop_schedule(config.crop_schedule)  # a malformed schedule fails before anything is written
     if config.feature_consistency > 0 and config.architecture != "cadenet2d":
         raise ValueError("the feature-consistency loss needs the cadenet2d architecture")
     torch.set_num_threads(config.threads)
