@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from cade_cli.data import get_dataset
-from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
+from cade_cli.evaluation.metrics import score as score_map
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
@@ -30,7 +30,9 @@ from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 
 BAD = 3.0
-AGREEMENT = 32.0
+"""px: a pick matters when it moves a pixel across the benchmark's BMP3 threshold (``bad3``)."""
+AGREEMENT = RankSgbmRefinement().agreement
+"""px: the refinement's fixed rule, which the learned chooser is scored against."""
 
 
 PROTOCOLS = ("cs", "rgb")
@@ -135,7 +137,6 @@ def score(caches: list[Path], chooser: Chooser | None, tasks: tuple[str, ...] | 
         rows = []
         for gt, task in tasks_of(cache, tasks):
             network, candidate, accepted = task["network"], task["candidate"], task["accepted"]
-            everywhere = np.ones(gt.shape, bool)
             maps = {"network": network,
                     "fixed": np.where(accepted & (np.abs(candidate - network) <= AGREEMENT), candidate, network)}
             if chooser is not None:
@@ -145,8 +146,8 @@ def score(caches: list[Path], chooser: Chooser | None, tasks: tuple[str, ...] | 
             maps["oracle"] = np.where(accepted & better, candidate, network)
             valid = visible_in_right_view(network)
             maps = {name: densify(np.where(valid, m, np.float32(np.nan)), valid) for name, m in maps.items()}
-            rows.append({name: (end_point_error(m, gt, everywhere), bad_pixel_rate(m, gt, everywhere, threshold=BAD))
-                         for name, m in maps.items()})
+            scored = {name: score_map(m, gt) for name, m in maps.items()}  # the benchmark's metrics, all pixels
+            rows.append({name: (metrics["epe_all"], metrics["bad3_all"]) for name, metrics in scored.items()})
         per_scene.append({name: tuple(np.mean([r[name][i] for r in rows]) for i in range(2)) for name in rows[0]})
     return {name: tuple(float(np.mean([s[name][i] for s in per_scene])) for i in range(2)) for name in per_scene[0]}
 
