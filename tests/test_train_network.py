@@ -336,8 +336,8 @@ def test_a_batch_without_ground_truth_is_skipped_not_learned(tmp_path: Path, mon
 
     real_pair = fit.training_pair
 
-    def no_ground_truth(rng, pool, real, config):
-        pair = real_pair(rng, pool, real, config)
+    def no_ground_truth(rng, pool, real, config, *size):
+        pair = real_pair(rng, pool, real, config, *size)
         return dataclasses.replace(pair, disparity=np.full_like(pair.disparity, np.nan))
 
     monkeypatch.setattr(fit, "training_pair", no_ground_truth)
