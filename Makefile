@@ -17,8 +17,10 @@ demo: $(BIN)/cade
 	mkdir -p $(OUT)
 	$(BIN)/cade disparity $(SAMPLE)/left_R.png $(SAMPLE)/right_B.png -o $(OUT)/art_disparity.pfm \
 		--max-disp 80 --vis $(OUT)/art_disparity.png
-	$(BIN)/cade register $(SAMPLE)/right_B.png $(SAMPLE)/left_R.png -o $(OUT)/art_registered.tif --max-disp 80
-	@echo "wrote $(OUT)/art_disparity.pfm, $(OUT)/art_disparity.png (colourised), $(OUT)/art_registered.tif"
+	$(BIN)/cade register $(SAMPLE)/right_B.png $(SAMPLE)/left_R.png -o $(OUT)/art_registered.tif --max-disp 80 \
+		--vis $(OUT)/art_registered.png
+	@echo "wrote $(OUT)/art_disparity.pfm, $(OUT)/art_disparity.png (colourised), $(OUT)/art_registered.tif," \
+		"$(OUT)/art_registered.png (overlay)"
 
 test: $(BIN)/cade
 	$(BIN)/python -m pytest -q

@@ -99,7 +99,8 @@ class PairOptions:
     a rig file; each pair is then matched as ``cade disparity LEFT RIGHT --rig`` does,
     with ``camera``, ``frame``, ``fix_vertical`` (:data:`RIG_ONLY`). ``vis``,
     ``validity``, ``confidence``, ``depth``, ``points`` ask for those outputs beside the
-    disparity (:data:`SIDE_OUTPUTS`).
+    disparity (:data:`SIDE_OUTPUTS`); ``vis_range``: the (min, max) px given the end
+    colours of ``vis`` (None: each map's own robust range).
     """
 
     method: str = DEFAULT_METHOD
@@ -120,6 +121,11 @@ class PairOptions:
     confidence: bool = False
     depth: bool = False
     points: bool = False
+    vis_range: tuple[float, float] | None = None
+    strict: bool = False
+    """Refuse a pair the pair check (:mod:`cade_cli.pair_check`) finds a problem with (the
+    pair fails, nothing written) instead of warning. Not part of the fingerprint: it
+    decides whether outputs are written, never what they hold."""
 
     def check(self) -> None:
         """Refuse unknown names and impossible combinations before any pair runs (a rig
@@ -132,6 +138,8 @@ class PairOptions:
             raise CadeError(f"unknown --fill {self.fill!r}; choose row or none")
         if isinstance(self.min_disp, int) and isinstance(self.max_disp, int) and self.max_disp < self.min_disp:
             raise CadeError(f"--max-disp {self.max_disp} is below --min-disp {self.min_disp}; raise --max-disp")
+        if self.vis_range is not None and not self.vis:
+            raise CadeError("--vis-range sets the colours of the --vis pictures; add --vis or drop --vis-range")
         if self.rig is None:
             given = [name for name in RIG_ONLY if getattr(self, name) != getattr(PairOptions, name)]
             if given:
@@ -158,6 +166,11 @@ class PairOptions:
         from cade_cli.model_card import DEFAULT_MODEL, read_card
 
         options = asdict(self)
+        del options["strict"]
+        if self.vis_range is None:  # left out, so that records written before it existed still match
+            del options["vis_range"]
+        else:
+            options["vis_range"] = list(self.vis_range)  # as JSON gives it back
         if self.rig is None:  # without a rig its options are their defaults: left out
             for name in ("rig", *RIG_ONLY):
                 del options[name]
@@ -209,6 +222,9 @@ class PairResult:
         notes: notes for the user (e.g. a colour image converted to luminance).
         peak_rss_mb: the worker's peak resident memory so far (MiB), after this pair.
         tiles: tiles the pair was matched as (:mod:`cade_cli.tiling`); 0: whole.
+        warnings: what the pair check found wrong with the pair (:mod:`cade_cli.pair_check`).
+        pair_check: the pair check's measurements (:meth:`~cade_cli.pair_check.PairCheck.record`):
+            vertical offset (px), rotation (degrees), ...; None with a rig (its self-check is in the record).
     """
 
     left: str
@@ -226,6 +242,8 @@ class PairResult:
     notes: tuple[str, ...] = ()
     peak_rss_mb: float | None = None
     tiles: int | None = None
+    warnings: tuple[str, ...] = ()
+    pair_check: dict | None = None
 
     @classmethod
     def failure(cls, pair: Pair, error: str, *, attempts: int, worker: str | None = None) -> "PairResult":
@@ -497,6 +515,7 @@ def run_pair(pair: Pair) -> PairResult:
         str(pair.left), str(pair.right), str(pair.output), "done", range=matched.range, range_note=matched.range_note,
         outputs=hashes, seconds=time.perf_counter() - started, worker=worker_name(), valid_share=matched.valid_share,
         notes=tuple(notes), peak_rss_mb=peak_rss_mb(), tiles=matched.facts.get("tiles"),
+        warnings=matched.warnings, pair_check=matched.facts.get("pair_check"),
     )
 
 
@@ -509,7 +528,9 @@ class _Matched:
     valid_share: float
     write: Callable[[dict[str, Path]], None]
     facts: dict = field(default_factory=dict)
-    """Added to the pair's record (how it was matched: tiles, the rig's self-check)."""
+    """Added to the pair's record (how it was matched: tiles, the rig's self-check, the pair check)."""
+    warnings: tuple[str, ...] = ()
+    """What the pair check found wrong (one line each)."""
 
 
 def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
@@ -517,6 +538,7 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
     tiles within the memory limit (:func:`cade_cli.tiling.estimate_disparity_tiled`)."""
     from cade_cli.disparity_io import write_match_outputs
     from cade_cli.matching import densify
+    from cade_cli.pair_check import check_pair
     from cade_cli.range import resolve_range
     from cade_cli.tiling import estimate_disparity_tiled
 
@@ -525,6 +547,9 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
         raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
                         f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
     searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
+    checked = check_pair(left, right, min_disp=searched.minimum, max_disp=searched.maximum)
+    if checked.problems and options.strict:
+        raise CadeError(f"{checked.describe()} (--strict)")
     budget = options.budget()
     result, plan = estimate_disparity_tiled(left, right, method=options.method, min_disp=searched.minimum,
                                             max_disp=searched.maximum, preprocess=options.preprocess,
@@ -536,10 +561,12 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
 
     def write(files: dict[str, Path]) -> None:
         write_match_outputs(files, dense=densify(result.disparity, result.valid), disparity=result.disparity,
-                            valid=result.valid, confidence=result.confidence, fill=options.fill)
+                            valid=result.valid, confidence=result.confidence, fill=options.fill,
+                            vis_range=options.vis_range)
 
     return _Matched((searched.minimum, searched.maximum), _range_note(options, estimate), float(result.valid.mean()),
-                    write, {"tiles": len(plan.tiles)})
+                    write, {"tiles": len(plan.tiles), "pair_check": checked.record()},
+                    (checked.describe(),) if checked.problems else ())
 
 
 def _tiled_note(budget: int) -> str:
@@ -582,6 +609,9 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
         self_check = None
     else:
         worst = check.worst(width)
+        if worst > VERTICAL_TOLERANCE_PX and not options.fix_vertical and options.strict:
+            raise CadeError(f"rectification self-check: vertical misalignment up to {worst:.2f} px, above "
+                            f"{VERTICAL_TOLERANCE_PX} px; add --fix-vertical or recalibrate (--strict)")
         if worst > VERTICAL_TOLERANCE_PX and not options.fix_vertical:
             notes.append(f"{pair.left}: rectification self-check: vertical misalignment up to {worst:.2f} px, above "
                          f"{VERTICAL_TOLERANCE_PX} px; add --fix-vertical or recalibrate")
@@ -589,7 +619,7 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
                       "corrected": found.corrected}
 
     def write(files: dict[str, Path]) -> None:
-        write_rig_outputs(files, framed, fill=options.fill, method=options.method)
+        write_rig_outputs(files, framed, fill=options.fill, method=options.method, vis_range=options.vis_range)
 
     return _Matched((found.range.minimum, found.range.maximum), _range_note(options, found.range_estimate),
                     float(framed.valid.mean()), write,

@@ -104,6 +104,14 @@ PreprocessOption = Annotated[
 ]
 
 
+VisRangeOption = Annotated[
+    Optional[str],
+    typer.Option("--vis-range", help="With --vis: disparities MIN:MAX (px, e.g. 0:80) given the two end colours of "
+                 "the picture, values beyond clipped to them, so that pictures of two runs compare (default: the "
+                 "1st-99th percentile of the map's valid disparities).", show_default=False),
+]
+
+
 def _band_option(side: str) -> object:
     return typer.Option(f"--{side}-band", min=0, help=f"0-based band of a multi-band {side} file (default: luminance of colour images).")
 
@@ -119,7 +127,9 @@ def disparity(
     preprocess: PreprocessOption = "auto",
     model: ModelOption = None,
     memory_limit: MemoryLimitOption = None,
-    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG (invalid = black).")] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG with a colour bar in px "
+                                                "(invalid = black).")] = None,
+    vis_range: VisRangeOption = None,
     left_band: Annotated[Optional[int], _band_option("left")] = None,
     right_band: Annotated[Optional[int], _band_option("right")] = None,
     fill: Annotated[
@@ -151,6 +161,9 @@ def disparity(
                                                    "PLY, metres, reference camera frame, grey from LEFT).")] = None,
     fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
                                                "roll the rectification self-check measures before matching.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
+                                         "or outside the range searched (exit 1, nothing written) instead of "
+                                         "warning.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.disparity_io import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, write_match_outputs
@@ -162,6 +175,7 @@ def disparity(
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
     min_disp, max_disp = _parse_range_options(min_disp, max_disp)
+    colour_range = _parse_vis_range(vis_range, vis)
     budget = _parse_memory_limit(memory_limit)
     _check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
     if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
@@ -185,7 +199,7 @@ def disparity(
             rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
             fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
             model=model, memory_limit=budget, vis=vis, left_band=left_band, right_band=right_band, fill=fill,
-            validity=validity, confidence=confidence)
+            validity=validity, confidence=confidence, vis_range=colour_range, strict=strict)
         return
     if rig_only:
         raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
@@ -193,6 +207,7 @@ def disparity(
     left_image, right_image = _read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     min_disp, max_disp = _resolve_range_options(min_disp, max_disp, left_image, right_image)
+    pair_check = _check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
     plan = plan_tiles(left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
                       memory_limit=budget, model=model)
     if plan.tiled:
@@ -210,18 +225,37 @@ def disparity(
     with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
         roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
         write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
-                            disparity=result.disparity, valid=result.valid, confidence=result.confidence, fill=fill)
+                            disparity=result.disparity, valid=result.valid, confidence=result.confidence, fill=fill,
+                            vis_range=colour_range)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
         f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
-        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
+        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
     )
+
+
+def _check_pair(left_image, right_image, *, min_disp: int, max_disp: int, strict: bool):
+    """Run the pair check (:func:`cade_cli.pair_check.check_pair`) before matching: a
+    problem found is a warning, or with ``strict`` an error; returns the check (None for
+    a pair the matcher refuses anyway, with its own message: sizes that differ, an
+    impossible range)."""
+    from cade_cli.errors import CadeError
+    from cade_cli.pair_check import check_pair
+
+    if left_image.shape != right_image.shape or max_disp < min_disp:
+        return None
+    found = check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
+    if found.problems and strict:
+        raise CadeError(f"{found.describe()} (--strict)")
+    if found.problems:
+        _warn(found.describe())
+    return found
 
 
 def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path, camera, frame, depth, points,
                         fix_vertical, method, max_disp, min_disp, preprocess, model, memory_limit, vis, left_band,
-                        right_band, fill, validity, confidence) -> None:
+                        right_band, fill, validity, confidence, vis_range=None, strict=False) -> None:
     """`cade disparity --rig`: rectify LEFT/RIGHT through the rig, check, match (the range
     resolved on the rectified pair, whole or as tiles within ``memory_limit``, bytes), write
     in the chosen frame."""
@@ -231,7 +265,7 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
     from cade_cli.range import AUTO
-    from cade_cli.rectification import FRAMES
+    from cade_cli.rectification import FRAMES, VERTICAL_TOLERANCE_PX
     from cade_cli.rig import load_rig
     from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
 
@@ -259,6 +293,10 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     if found.plan.tiled:
         _note(found.plan.describe())
     if found.misalignment is not None:
+        if strict and not fix_vertical and found.misalignment.worst(width) > VERTICAL_TOLERANCE_PX:
+            raise CadeError(f"rectification self-check: vertical misalignment up to "
+                            f"{found.misalignment.worst(width):.2f} px, above {VERTICAL_TOLERANCE_PX} px; add "
+                            "--fix-vertical or recalibrate (--strict)")
         _report_misalignment(found.misalignment, width, fixed=fix_vertical, corrected=found.corrected)
     else:
         _warn(f"rectification self-check skipped: {found.self_check_problem}")
@@ -267,7 +305,7 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
              "points": points}
     with atomic_outputs(list(files.values())) as staged:  # all outputs appear together, or none
         written = write_rig_outputs({role: None if path is None else staged[path] for role, path in files.items()},
-                                    framed, fill=fill, method=method)
+                                    framed, fill=fill, method=method, vis_range=vis_range)
     height, width = framed.dense.shape
     known = framed.dense[framed.valid] if framed.valid.any() else framed.dense[:1] * 0
     print(f"{output}: {width}x{height} ({frame} frame of {rectification.cameras[0]}; rectified "
@@ -305,16 +343,28 @@ def register(
     reference_band: Annotated[
         Optional[int], typer.Option("--reference-band", min=0, help="0-based band of the reference file.")
     ] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a PNG to judge the registration by: the "
+                                                "reference in magenta, the registered band in green (aligned = grey), "
+                                                "no valid registration tinted blue.")] = None,
+    vis_mode: Annotated[str, typer.Option("--vis-mode", help="With --vis: 'overlay' (magenta / green) or 'checker' "
+                                          "(a checkerboard of the two bands' tiles).")] = "overlay",
 ) -> None:
     """Warp MOVING into the view of REFERENCE and write both as one multi-band TIFF."""
+    from cade_cli.atomic import atomic_outputs
     from cade_cli.disparity_io import read_disparity
     from cade_cli.registration import register as register_band
-    from cade_cli.registration_io import write_registration
+    from cade_cli.registration_io import REGISTRATION_VIS_MODES, write_registration, write_registration_picture
 
     from cade_cli.errors import CadeError
 
     inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
     _check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
+    if vis is not None:
+        _check_output(vis, suffixes=(".png",), inputs=inputs)
+    if vis_mode not in REGISTRATION_VIS_MODES:
+        raise CadeError(f"unknown --vis-mode {vis_mode!r}; choose {' or '.join(REGISTRATION_VIS_MODES)}")
+    if vis is None and context.get_parameter_source("vis_mode").name != "DEFAULT":
+        raise CadeError("--vis-mode says how --vis draws the registration; add --vis PICTURE.png or drop --vis-mode")
     if validity_file is not None and disparity_file is None:
         raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
     if fill not in ("row", "none"):
@@ -353,7 +403,10 @@ def register(
         source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"
         _warn_if_textureless(reference, moving, reference_image, moving_image)
     seconds = time.perf_counter() - started
-    write_registration(output, result)
+    with atomic_outputs([output, vis]) as staged:  # all outputs appear together, or none
+        write_registration(staged[output], result)
+        if vis is not None:
+            write_registration_picture(staged[vis], result, mode=vis_mode)
     height, width = result.reference.shape
     print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")
 
@@ -832,7 +885,9 @@ def batch(
     fill: Annotated[str, typer.Option("--fill", help="As `cade disparity --fill`: 'row' (dense) or 'none'.")] = "row",
     left_band: Annotated[Optional[int], _band_option("left")] = None,
     right_band: Annotated[Optional[int], _band_option("right")] = None,
-    vis: Annotated[bool, typer.Option("--vis", help="Also write <name>_vis.png (colourised, invalid = black).")] = False,
+    vis: Annotated[bool, typer.Option("--vis", help="Also write <name>_vis.png (colourised, with a colour bar in px; "
+                                      "invalid = black).")] = False,
+    vis_range: VisRangeOption = None,
     validity: Annotated[bool, typer.Option("--validity", help="Also write <name>_validity.png (255 = valid).")] = False,
     confidence: Annotated[bool, typer.Option("--confidence", help="Also write <name>_confidence.tif (float32, "
                                              "[0, 1]).")] = False,
@@ -860,6 +915,9 @@ def batch(
                                          "metres, reference camera frame).")] = False,
     fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
                                                "roll the rectification self-check measures before matching.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="A pair the pair check finds unrectified, swapped or "
+                                         "outside the range searched fails (nothing written for it) instead of "
+                                         "warning.")] = False,
     jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes on this machine, each loading "
                                       "the model once; lowered if their memory would not fit.")] = 1,
     threads: Annotated[Optional[int], typer.Option("--threads", min=1, help="Threads of each worker (default: the "
@@ -909,7 +967,7 @@ def batch(
                           memory_limit=None if memory_limit is None else _parse_memory_limit(memory_limit),
                           rig=None if rig_file is None else str(rig_file.absolute()), camera=camera, frame=frame,
                           fix_vertical=fix_vertical, vis=vis, validity=validity, confidence=confidence, depth=depth,
-                          points=points)
+                          points=points, vis_range=_parse_vis_range(vis_range, vis), strict=strict)
     options.check()
     if manifest is not None:
         pairs = pairs_from_manifest(manifest, options=options)
@@ -968,6 +1026,8 @@ def batch(
                     if note not in shown_notes:
                         shown_notes.add(note)
                         progress.console.print(f"note: {note}", highlight=False, markup=False)
+                for warning in result.warnings:  # the pair check's findings
+                    progress.console.print(f"warning: {result.output}: {warning}", highlight=False, markup=False)
                 if result.status == "failed":
                     progress.console.print(f"warning: pair {result.left}, {result.right} failed: {result.error}",
                                            highlight=False, markup=False)
@@ -1048,6 +1108,19 @@ def _resolve_range_options(min_disp: int | str, max_disp: int | str | None, left
     searched, estimate = resolve_range(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
     _note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
     return searched.minimum, searched.maximum
+
+
+def _parse_vis_range(vis_range: str | None, vis: object) -> tuple[float, float] | None:
+    """--vis-range MIN:MAX as (min, max) px (:func:`cade_cli.pictures.parse_value_range`),
+    refused without --vis (``vis``: its value, None or False when not given)."""
+    from cade_cli.errors import CadeError
+    from cade_cli.pictures import parse_value_range
+
+    if vis_range is None:
+        return None
+    if vis is None or vis is False:
+        raise CadeError("--vis-range sets the colours of the --vis picture; add --vis PICTURE.png or drop --vis-range")
+    return parse_value_range(vis_range, option="--vis-range")
 
 
 def _parse_memory_limit(memory_limit: str | None) -> int:

@@ -32,6 +32,9 @@ from cade_cli.imageio import (
     read_bytes,
     read_tiff_array,
 )
+from cade_cli.pictures import (
+    INVALID_COLOUR, ROBUST_PERCENTILES, ColourBar, Swatch, colour_map, format_value, robust_range, scaled_picture,
+)
 
 DISPARITY_SUFFIXES: tuple[str, ...] = (".pfm", ".tif", ".tiff", ".png", ".npy")
 """Extensions :func:`read_disparity` and :func:`write_disparity` handle (any case)."""
@@ -169,33 +172,55 @@ def colorize_disparity(
         CadeError: not 2-D, or ``vmax < vmin``.
     """
     values = _as_disparity(disparity)
-    valid = np.isfinite(values)
-    low, high = _colour_range(values[valid], vmin=vmin, vmax=vmax)
-    span = high - low
-    scaled = np.zeros(values.shape, dtype=np.float64)
-    if span > 0:
-        scaled[valid] = np.clip((values[valid] - low) / span, 0.0, 1.0)
+    low, high = _colour_range(values[np.isfinite(values)], vmin=vmin, vmax=vmax)
+    return colour_map(values, colormap=cv2.COLORMAP_TURBO, low=low, high=high)
+
+
+def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float] | None = None) -> np.ndarray:
+    """A disparity map for looking at: Turbo colours, invalid pixels black, and under it
+    a colour bar in px with its range and a legend (:func:`cade_cli.pictures.with_legend`).
+
+    Args:
+        disparity: (H, W) pixels, NaN (any non-finite) = invalid.
+        value_range: (min, max) px mapped to the ends of the colour bar, values beyond
+            clipped to the end colours: the same range gives the same colour to the same
+            disparity in every picture. Default: the 1st-99th percentile of the valid
+            disparities (:func:`cade_cli.pictures.robust_range`), so a few outliers do
+            not squeeze the rest into one colour.
+
+    Returns:
+        (H + legend, max(W, 360), 3) uint8, B, G, R; the top-left (H, W) block is
+        :func:`colorize_disparity` of the map with that range.
+    """
+    values = _as_disparity(disparity)
+    if value_range is None:
+        low, high = robust_range(values)
+        how = f"the {ROBUST_PERCENTILES[0]:g}-{ROBUST_PERCENTILES[1]:g} % range of the valid pixels"
     else:
-        scaled[valid] = values[valid] > low
-    levels = np.rint(scaled * 255.0).astype(np.uint8)
-    coloured = cv2.applyColorMap(levels, cv2.COLORMAP_TURBO)
-    coloured[~valid] = 0
-    return coloured
+        low, high = (float(bound) for bound in value_range)
+        if high <= low:
+            raise CadeError(f"a colour range must have min < max, got {low} : {high}")
+        how = "a fixed range"
+    shown = [format_value(bound, (high - low) / 10) for bound in (low, high)]  # a decimal more than the ticks
+    caption = (f"disparity, px: colours span {shown[0]} to {shown[1]} ({how}); "
+               "values beyond get the end colours")
+    if not np.isfinite(values).any():
+        caption = "disparity, px: no valid pixel"
+    bar = ColourBar(cv2.COLORMAP_TURBO, low, high, caption)
+    return scaled_picture(values, bar, swatches=[Swatch(INVALID_COLOUR, "black = invalid / rejected")])
 
 
-def write_visualization(
-    path: Path, disparity: np.ndarray, *, vmin: float | None = None, vmax: float | None = None
-) -> None:
-    """Write :func:`colorize_disparity` of ``disparity`` as a PNG, all-or-nothing.
+def write_visualization(path: Path, disparity: np.ndarray, *, value_range: tuple[float, float] | None = None) -> None:
+    """Write :func:`disparity_picture` of ``disparity`` (with its colour bar) as a PNG, all-or-nothing.
 
     Raises:
-        CadeError: ``path`` does not end in .png, plus :func:`colorize_disparity`'s errors.
+        CadeError: ``path`` does not end in .png, plus :func:`disparity_picture`'s errors.
     """
     path = Path(path)
     if path.suffix.lower() != ".png":
         raise CadeError(f"visualization {path} must be a .png file; change its extension to .png")
-    coloured = colorize_disparity(disparity, vmin=vmin, vmax=vmax)
-    _write_atomically(path, lambda tmp: _write_png(tmp, coloured))
+    picture = disparity_picture(disparity, value_range=value_range)
+    _write_atomically(path, lambda tmp: _write_png(tmp, picture))
 
 
 VALIDITY_SUFFIXES: tuple[str, ...] = (".png", ".tif", ".tiff")
@@ -402,14 +427,16 @@ def _write_atomically(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def write_match_outputs(files: dict[str, Path], *, dense: np.ndarray, disparity: np.ndarray, valid: np.ndarray,
-                        confidence: np.ndarray | None, fill: str = "row") -> None:
+                        confidence: np.ndarray | None, fill: str = "row",
+                        vis_range: tuple[float, float] | None = None) -> None:
     """Write a match's outputs, each to ``files[role]`` when the role is there: ``disparity``
     (``dense`` for ``fill="row"``, else the unfilled ``disparity``, NaN where rejected),
-    ``vis`` (of the unfilled map: rejected pixels black), ``validity`` and ``confidence``
+    ``vis`` (of the unfilled map: rejected pixels black, colours over ``vis_range`` px,
+    default the robust range of :func:`disparity_picture`), ``validity`` and ``confidence``
     (float32 TIFF). ``cade disparity``, ``--rig`` and ``cade batch`` all write through here."""
     write_disparity(files["disparity"], dense if fill == "row" else disparity)
     if "vis" in files:
-        write_visualization(files["vis"], disparity)
+        write_visualization(files["vis"], disparity, value_range=vis_range)
     if "validity" in files:
         write_validity(files["validity"], valid)
     if "confidence" in files:  # no NaN: 0 where rejected

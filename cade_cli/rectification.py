@@ -291,16 +291,112 @@ def gradient_image(band: np.ndarray) -> np.ndarray:
     return np.clip(normalised * 64, 0, 255).astype(np.uint8)
 
 
+FEATURE_DETECTORS = ("sift", "orb")
+"""Detectors :func:`sparse_matches` offers: ``sift`` (precise, the rig self-check's) and
+``orb`` (about ten times cheaper, the pair check's: :mod:`cade_cli.pair_check`)."""
+
+
+def sparse_matches(left: np.ndarray, right: np.ndarray, *, detector: str = "sift", features: int = 4000,
+                   max_vertical: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Sparse feature matches between two bands that may come from different filters.
+
+    Features are detected on :func:`gradient_image` of each band (so a contrast inversion
+    or a different response of the filters matters little) and matched mutually, with
+    Lowe's ratio test (0.8).
+
+    Args:
+        left, right: (H, W) float bands, any range; sizes may differ.
+        detector: ``sift`` (float descriptors, L2) or ``orb`` (binary, Hamming, one
+            scale: the two views of a pair share their scale), :data:`FEATURE_DETECTORS`.
+        features: the most features detected per band.
+        max_vertical: only features whose rows differ by at most this many px are
+            candidates (and compete in the ratio test); None: any two.
+
+    Returns:
+        (points_left, points_right): (N, 2) float64 (x, y) px of the N matches, in the
+        pixels of each band; N may be 0.
+    """
+    if detector == "sift":
+        finder, norm = cv2.SIFT_create(nfeatures=features, contrastThreshold=0.02), cv2.NORM_L2
+    elif detector == "orb":
+        finder, norm = cv2.ORB_create(nfeatures=features, nlevels=1, fastThreshold=5), cv2.NORM_HAMMING
+    else:
+        raise ValueError(f"unknown detector {detector!r}; expected one of {FEATURE_DETECTORS}")
+    key_left, desc_left = finder.detectAndCompute(gradient_image(left), None)
+    key_right, desc_right = finder.detectAndCompute(gradient_image(right), None)
+    if desc_left is None or desc_right is None or len(key_left) < 2 or len(key_right) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    matcher = cv2.BFMatcher(norm)
+    if max_vertical is None:
+        forward = matcher.knnMatch(desc_left, desc_right, k=2)
+        backward = {m[0].queryIdx: m[0].trainIdx for m in matcher.knnMatch(desc_right, desc_left, k=1) if m}
+    else:
+        rows_left, rows_right = (np.float32([key.pt[1] for key in keys]) for keys in (key_left, key_right))
+        allowed = (np.abs(rows_left[:, None] - rows_right[None, :]) <= max_vertical).astype(np.uint8)
+        forward = matcher.knnMatch(desc_left, desc_right, k=2, mask=allowed)
+        backward = {m[0].queryIdx: m[0].trainIdx
+                    for m in matcher.knnMatch(desc_right, desc_left, k=1, mask=np.ascontiguousarray(allowed.T)) if m}
+    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in forward
+             if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx]
+    if not pairs:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    return (np.float64([key_left[i].pt for i, _ in pairs]).reshape(-1, 2),
+            np.float64([key_right[j].pt for _, j in pairs]).reshape(-1, 2))
+
+
+def fit_vertical_misalignment(x: np.ndarray, dy: np.ndarray, *, size: tuple[int, int], min_band: float = 0.25,
+                              min_roll_matches: int = MIN_ROLL_MATCHES) -> tuple[VerticalMisalignment, np.ndarray]:
+    """Fit ``dy = offset + tan(roll) (x - cx)`` to matches, robustly.
+
+    Least squares, repeated on the matches within 3 robust standard deviations (at
+    least ``min_band`` px) of the previous fit, starting from those within 3 of the median
+    (at least 0.5 px). With fewer than ``min_roll_matches`` matches only the offset is
+    fitted (roll 0).
+
+    Args:
+        x: (N,) column of each match in the left band, px.
+        dy: (N,) right-band row minus left-band row of each match, px.
+        size: (width, height) of the band, px (the roll turns about its centre).
+        min_band: the narrowest inlier band, px (the precision of the match positions).
+        min_roll_matches: the fewest matches the roll is fitted from.
+
+    Returns:
+        (the fit, (N,) bool inlier mask).
+
+    Raises:
+        CadeError: fewer than :data:`MIN_SELF_CHECK_MATCHES` matches, or inliers.
+    """
+    x, dy = np.asarray(x, np.float64), np.asarray(dy, np.float64)
+    if len(dy) < MIN_SELF_CHECK_MATCHES:
+        raise _too_few_matches(len(dy))
+    width, height = size
+    centre = ((width - 1) / 2, (height - 1) / 2)
+    design = np.stack([np.ones_like(x), x - centre[0]], axis=1)
+    if len(dy) < min_roll_matches:
+        design[:, 1] = 0  # offset only; lstsq gives the roll term 0
+    inliers = np.abs(dy - np.median(dy)) <= max(3 * 1.4826 * np.median(np.abs(dy - np.median(dy))), 0.5)
+    for _ in range(5):
+        if inliers.sum() < MIN_SELF_CHECK_MATCHES:
+            raise _too_few_matches(int(inliers.sum()))
+        coefficients, *_ = np.linalg.lstsq(design[inliers], dy[inliers], rcond=None)
+        residual = dy - design @ coefficients
+        spread = 1.4826 * float(np.median(np.abs(residual[inliers])))
+        inliers = np.abs(residual) <= max(3 * spread, min_band)
+    offset, slope = (float(v) for v in coefficients)
+    found = VerticalMisalignment(offset=offset, roll=math.atan(slope),
+                                 residual=float(np.median(np.abs(residual[inliers]))) if inliers.any() else 0.0,
+                                 matches=int(inliers.sum()), centre=centre)
+    return found, inliers
+
+
 def measure_vertical_misalignment(left: np.ndarray, right: np.ndarray, *, max_vertical: float = 8.0,
                                   max_disp: float | None = None, mirrored: bool = False) -> VerticalMisalignment:
     """Fit a vertical offset and roll to sparse matches between a rectified pair.
 
     SIFT features on :func:`gradient_image` of each band are matched (ratio test 0.8,
-    mutual), kept where the row difference is within ``max_vertical`` px and the
-    disparity ``x_left - x_right`` within [-8, ``max_disp`` + 8] px, and
-    ``dy = offset + tan(roll) (x - cx)`` is fitted by least squares repeated on the
-    matches within 3 robust standard deviations (at least 0.25 px) of the previous fit.
-    With fewer than :data:`MIN_ROLL_MATCHES` matches only the offset is fitted (roll 0).
+    mutual; :func:`sparse_matches`), kept where the row difference is within
+    ``max_vertical`` px and the disparity ``x_left - x_right`` within [-8, ``max_disp`` + 8]
+    px, and ``dy = offset + tan(roll) (x - cx)`` is fitted (:func:`fit_vertical_misalignment`).
 
     Args:
         left, right: (H, W) float bands of one rectified pair, same size, any range.
@@ -318,41 +414,14 @@ def measure_vertical_misalignment(left: np.ndarray, right: np.ndarray, *, max_ve
         raise CadeError(f"the self-check needs two (H, W) bands of one size, got {left.shape} and {right.shape}")
     height, width = left.shape
     max_disp = float(width) if max_disp is None else float(max_disp)
-    sift = cv2.SIFT_create(nfeatures=4000, contrastThreshold=0.02)
-    key_left, desc_left = sift.detectAndCompute(gradient_image(left), None)
-    key_right, desc_right = sift.detectAndCompute(gradient_image(right), None)
-    if desc_left is None or desc_right is None or len(key_left) < 2 or len(key_right) < 2:
+    points_left, points_right = sparse_matches(left, right, detector="sift", features=4000)
+    if not len(points_left):
         raise _too_few_matches(0)
-    matcher = cv2.BFMatcher(cv2.NORM_L2)
-    forward = matcher.knnMatch(desc_left, desc_right, k=2)
-    backward = {m[0].queryIdx: m[0].trainIdx for m in matcher.knnMatch(desc_right, desc_left, k=1) if m}
-    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in forward
-             if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx]
-    if not pairs:
-        raise _too_few_matches(0)
-    points_left = np.float64([key_left[i].pt for i, _ in pairs])
-    points_right = np.float64([key_right[j].pt for _, j in pairs])
     dy = points_right[:, 1] - points_left[:, 1]
     dx = (points_left[:, 0] - points_right[:, 0]) * (-1.0 if mirrored else 1.0)
     keep = (np.abs(dy) <= max_vertical) & (dx >= -8) & (dx <= max_disp + 8)
-    x, dy = points_left[keep, 0], dy[keep]
-    if len(dy) < MIN_SELF_CHECK_MATCHES:
-        raise _too_few_matches(len(dy))
-    centre = ((width - 1) / 2, (height - 1) / 2)
-    design = np.stack([np.ones_like(x), x - centre[0]], axis=1)
-    if len(dy) < MIN_ROLL_MATCHES:
-        design[:, 1] = 0  # offset only; lstsq gives the roll term 0
-    inliers = np.abs(dy - np.median(dy)) <= max(3 * 1.4826 * np.median(np.abs(dy - np.median(dy))), 0.5)
-    for _ in range(5):
-        if inliers.sum() < MIN_SELF_CHECK_MATCHES:
-            raise _too_few_matches(int(inliers.sum()))
-        coefficients, *_ = np.linalg.lstsq(design[inliers], dy[inliers], rcond=None)
-        residual = dy - design @ coefficients
-        spread = 1.4826 * float(np.median(np.abs(residual[inliers])))
-        inliers = np.abs(residual) <= max(3 * spread, 0.25)
-    offset, slope = (float(v) for v in coefficients)
-    return VerticalMisalignment(offset=offset, roll=math.atan(slope), residual=float(np.median(np.abs(residual[inliers]))),
-                                matches=int(inliers.sum()), centre=centre)
+    found, _ = fit_vertical_misalignment(points_left[keep, 0], dy[keep], size=(width, height))
+    return found
 
 
 def _too_few_matches(count: int) -> CadeError:

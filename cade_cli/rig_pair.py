@@ -76,13 +76,15 @@ def match_rig_pair(
 
 
 def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity, *, fill: str,
-                      method: str) -> int | None:
+                      method: str, vis_range: tuple[float, float] | None = None) -> int | None:
     """Write the outputs of a rig's pair to ``paths`` (role -> file, :data:`RIG_OUTPUT_ROLES`;
     a role missing or None is not written), as ``cade disparity --rig`` writes them.
 
     ``disparity``: the map (filled unless ``fill`` is ``none``); ``vis``: the colourised
-    unfilled map; ``validity``: the mask; ``confidence``: float32 TIFF; ``depth``: float32
-    TIFF, metres, NaN where unknown; ``points``: binary PLY.
+    unfilled disparity (px, with its colour bar; ``vis_range`` (min, max) px fixes its
+    colours, :func:`~cade_cli.disparity_io.disparity_picture`); ``validity``: the mask;
+    ``confidence``: float32 TIFF; ``depth``: float32 TIFF, metres, NaN where unknown;
+    ``points``: binary PLY.
 
     Returns:
         The number of points written, or None when no ``points`` were asked for.
@@ -100,7 +102,7 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
     if "confidence" in wanted and framed.confidence is None:
         raise CadeError(f"method {method} gives no confidence; drop --confidence")
     write_match_outputs(wanted, dense=framed.dense, disparity=framed.disparity, valid=framed.valid,
-                        confidence=framed.confidence, fill=fill)
+                        confidence=framed.confidence, fill=fill, vis_range=vis_range)
     if "depth" in wanted:
         write_disparity(wanted["depth"], framed.depth)  # float32 TIFF, NaN where unknown
     if "points" in wanted:

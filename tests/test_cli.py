@@ -34,7 +34,8 @@ def test_disparity_writes_an_accurate_map_and_a_summary(pair_files, tmp_path, ca
     assert code == 0, stderr
     estimate = read_disparity(out)
     assert np.abs(estimate - pair.disparity)[pair.reliable].mean() < 0.5
-    assert cv2.imread(str(vis)).shape == (72, 112, 3)
+    picture = cv2.imread(str(vis))
+    assert picture.shape[0] > 72 and picture.shape[1] >= 112  # the map, and its colour bar under it
     assert len(stdout.strip().splitlines()) == 1
     assert "112x72" in stdout and "valid" in stdout and "cade+cade" in stdout  # the default, auto resolved
 

@@ -13,6 +13,7 @@ import tifffile
 from cade_cli.disparity_io import (
     DISPARITY_SUFFIXES,
     colorize_disparity,
+    disparity_picture,
     read_disparity,
     read_pfm,
     write_disparity,
@@ -289,9 +290,10 @@ def test_colorize_degenerate_maps() -> None:
 
 def test_write_visualization(tmp_path: Path, rng: np.random.Generator) -> None:
     disparity = _signed_disparity(rng)
-    write_visualization(tmp_path / "vis.png", disparity, vmin=0.0, vmax=100.0)
+    write_visualization(tmp_path / "vis.png", disparity, value_range=(0.0, 100.0))
     written = cv2.imread(str(tmp_path / "vis.png"), cv2.IMREAD_UNCHANGED)
-    np.testing.assert_array_equal(written, colorize_disparity(disparity, vmin=0.0, vmax=100.0))
+    np.testing.assert_array_equal(written, disparity_picture(disparity, value_range=(0.0, 100.0)))
+    np.testing.assert_array_equal(written[:6, :9], colorize_disparity(disparity, vmin=0.0, vmax=100.0))
     with pytest.raises(CadeError, match=r"must be a \.png"):
         write_visualization(tmp_path / "vis.jpg", disparity)
     assert _only_file(tmp_path) == ["vis.png"]

@@ -18,12 +18,13 @@ LAYERS: dict[str, int] = {
     # 0: foundations (no cade_cli import but each other)
     "cade_cli.errors": 0, "cade_cli.checksum": 0, "cade_cli.atomic": 0, "cade_cli.allocator": 0,
     "cade_cli.imageio": 0, "cade_cli.disparity_io": 0, "cade_cli.spectral": 0, "cade_cli.model_card": 0,
+    "cade_cli.pictures": 0,
     # 1: matchers
     "cade_cli.matching": 1,
     # 2: the library's entry points
     "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.registration_io": 2,
     "cade_cli.rig": 2, "cade_cli.calibration": 2, "cade_cli.rectification": 2,
-    "cade_cli.rig_pair": 2,
+    "cade_cli.rig_pair": 2, "cade_cli.pair_check": 2,
     "cade_cli.array": 2, "cade_cli.range": 2, "cade_cli.tiling": 2,
     # 3: data sets, then the evaluation built on them
     "cade_cli.data": 3,
