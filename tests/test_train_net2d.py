@@ -68,8 +68,27 @@ def test_a_config_names_its_architecture():
         network_of({**vars(config), "architecture": "nope"})
 
 
+def test_the_slice_aggregation_applies_one_filter_to_every_disparity_and_starts_at_zero():
+    from cade_cli.train.net2d import SliceAggregation
+
+    stage = SliceAggregation(groups=4, channels=4).eval()
+    cost = torch.rand(2, 8 * 4, 12, 16)  # 8 disparities x 4 group cosines, disparity-major
+    assert torch.equal(stage(cost, 8), torch.zeros(2, 8, 12, 16))  # zero exit: an untrained stage changes nothing
+    torch.nn.init.normal_(stage.net[-1].weight)
+    with torch.no_grad():
+        out = stage(cost, 8)
+        alone = [stage(cost[:, 4 * d:4 * d + 4], 1) for d in range(8)]  # each disparity's slice by itself
+        rolled = stage(torch.cat([cost[:, 4:], cost[:, :4]], dim=1), 8)
+    assert float(out.abs().max()) > 0
+    assert all(torch.allclose(out[:, d:d + 1], alone[d], atol=1e-6) for d in range(8))
+    assert torch.allclose(rolled, torch.cat([out[:, 1:], out[:, :1]], dim=1), atol=1e-6)
+    net = CadeNet2D(levels=32, width=16, slice_channels=4)
+    assert net.slices is not None and CadeNet2D(levels=32).slices is None
+
+
 def test_onnx_agrees_with_torch(tmp_path: Path):
-    net = _with_batch_statistics(CadeNet2D(levels=32, width=16, refine_channels=4))
+    net = _with_batch_statistics(CadeNet2D(levels=32, width=16, refine_channels=4, slice_channels=4))
+    torch.nn.init.normal_(net.slices.net[-1].weight, std=0.1)  # a trained-looking stage, not its zero start
     path = tmp_path / "net.onnx"
     export_onnx(net, path)
     assert verify_onnx(net, path, sizes=((48, 64), (80, 208))) < 1e-3

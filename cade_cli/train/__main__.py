@@ -71,6 +71,8 @@ def fit(
     width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution.")] = 48,
     full_refinement: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a full-resolution refinement "
                                                  "(0: none; the 1/2-level estimate upsampled).")] = 0,
+    slice_channels: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a spatial aggregation shared by "
+                                                "every disparity (0: none).")] = 0,
     scene_range: Annotated[float, typer.Option(min=0.01, max=1.0, help="Rendered scenes span (LEVELS - 1) x s, s "
                                                "drawn log-uniformly from [SCENE_RANGE, 1] (1: the whole range).")]
     = 1.0,
@@ -117,7 +119,7 @@ def fit(
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
                          network_input=network_input, architecture=architecture, width2d=width2d,
-                         full_refinement=full_refinement, validate_rgb=validate_rgb, scene_range=scene_range,
+                         full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, misaligned_offset=misaligned_offset,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule)
     train(config, resume=resume)

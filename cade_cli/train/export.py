@@ -97,7 +97,9 @@ def architecture_text(net, output: str) -> str:
     if not isinstance(net, CadeNet):
         design = net.design
         return (f"CadeNet2D: 2D features (1/2, 1/4 res) -> normalised group-wise correlation ({design['groups']} "
-                f"groups) -> 2D U-Net ({design['width']} channels at 1/4) -> soft-argmin -> 1/2-res warped-feature "
+                f"groups)" + (f" -> per-disparity 2D aggregation ({design['slice_channels']} channels, shared)"
+                                if design.get("slice_channels") else "")
+                + f" -> 2D U-Net ({design['width']} channels at 1/4) -> soft-argmin -> 1/2-res warped-feature "
                 f"refinement" + (" -> full-res refinement" if design["refine_channels"] else " -> bilinear x2")
                 + ("" if output == "disparity" else " (coarse output: refinements not exported)"))
     return ("CadeNet: 2D features (1/4 res) -> group-wise correlation (8 groups) -> "

@@ -97,6 +97,8 @@ class TrainConfig:
     """``cadenet2d``: the 2D U-Net's channels at 1/4 resolution."""
     full_refinement: int = 0
     """``cadenet2d``: channels of a full-resolution refinement after the 1/2-level one (0: none)."""
+    slice_channels: int = 0
+    """``cadenet2d``: channels of the per-disparity aggregation shared by every disparity (0: none)."""
     scene_range: float = 1.0
     """Rendered scenes limit their disparities to ``(levels - 1) * s``, s drawn log-uniformly
     from [``scene_range``, 1] per scene (1: every scene spans the whole range, as before):

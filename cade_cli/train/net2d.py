@@ -86,6 +86,28 @@ def normalised_correlation(left: torch.Tensor, right: torch.Tensor, levels: int,
     return torch.cat(slices, dim=1)
 
 
+class SliceAggregation(nn.Module):
+    """Spatial aggregation of the correlation volume, one small 2D CNN shared by every
+    disparity (the volume's slices run as a batch: a 1x3x3 Conv3D's weight sharing at 2D
+    cost): (B, levels * groups, h, w) -> one score per disparity, (B, levels, h, w), added
+    to the logits. The U-Net sees disparities as channels and must learn each one's
+    aggregation apart; this stage learns one window filter for all of them (SGBM's block
+    aggregation, learned). Its exit starts at zero: an untrained stage changes nothing."""
+
+    def __init__(self, groups: int, channels: int = 4):
+        super().__init__()
+        self.groups = groups
+        self.net = nn.Sequential(conv2d(groups, channels), conv2d(channels, channels, dilation=2),
+                                 nn.Conv2d(channels, 1, 3, padding=1))
+        nn.init.zeros_(self.net[-1].weight)
+        nn.init.zeros_(self.net[-1].bias)
+
+    def forward(self, cost: torch.Tensor, levels: int) -> torch.Tensor:
+        batch, _, height, width = cost.shape
+        slices = cost.reshape(batch * levels, self.groups, height, width)  # disparity-major: one slice per row
+        return self.net(slices).reshape(batch, levels, height, width)
+
+
 class UNet2D(nn.Module):
     """Cost volume and left features at 1/4 -> logits (B, levels, h, w): a 2D U-Net with
     levels at 1/4 (``width``), 1/8 (4/3 width) and 1/16 (2x width)."""
@@ -159,21 +181,25 @@ class CadeNet2D(nn.Module):
         width: the U-Net's channels at 1/4.
         half_channels, refine_channels: the 1/2 and full-resolution refinements' channels
             (``refine_channels`` 0: no full-resolution stage, the 1/2 estimate upsampled).
+        slice_channels: channels of the per-disparity aggregation (:class:`SliceAggregation`;
+            0: none, the design before it).
     """
 
     divisor = DIVISOR2D
 
     def __init__(self, levels: int = 192, features: int = 32, groups: int = 4, width: int = 48,
-                 half_channels: int = 16, refine_channels: int = 0, blocks: int = 2):
+                 half_channels: int = 16, refine_channels: int = 0, blocks: int = 2, slice_channels: int = 0):
         super().__init__()
         if levels % DIVISOR2D:
             raise ValueError(f"levels must be a multiple of {DIVISOR2D}, got {levels}")
         self.levels, self.groups, self.coarse_levels = levels, groups, levels // 4
         self.design = {"architecture": "cadenet2d", "features": features, "groups": groups, "width": width,
-                       "half_channels": half_channels, "refine_channels": refine_channels, "blocks": blocks}
+                       "half_channels": half_channels, "refine_channels": refine_channels, "blocks": blocks,
+                       "slice_channels": slice_channels}
         self.features = Features2D(features, blocks)
         self.aggregation = UNet2D(groups * self.coarse_levels + features, self.coarse_levels, width)
         self.prior_gain = nn.Parameter(torch.tensor(PRIOR_GAIN))
+        self.slices = SliceAggregation(groups, slice_channels) if slice_channels else None
         self.half_refinement = HalfRefinement(16, half_channels)
         self.refinement = FullRefinement(refine_channels) if refine_channels else None
 
@@ -190,6 +216,8 @@ class CadeNet2D(nn.Module):
         batch, _, height, width = cost.shape
         prior = cost.view(batch, self.coarse_levels, self.groups, height, width).mean(dim=2)
         logits = self.prior_gain * prior + self.aggregation(torch.cat([cost, feat_left], dim=1))
+        if self.slices is not None:
+            logits = logits + self.slices(cost, self.coarse_levels)
         mean, coarse, uncertainty = soft_argmin(logits, size)
         start = 2.0 * F.interpolate(mean, size=half_left.shape[-2:], mode="bilinear", align_corners=False)
         half_estimate = 2.0 * F.interpolate(self.half_refinement(half_left, half_right, start), size=size,
