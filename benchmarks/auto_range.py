@@ -4,7 +4,7 @@
 For every scene of each dataset and the cross-spectral tasks ``R>B`` and ``B>R``:
 
 * coverage: the share of the scene's ground-truth disparities inside the estimated range
-  (:func:`cade_cli.range.estimate_range`), over all GT pixels and over the GT pixels whose
+  (:func:`cade_cli.scale.range.estimate_range`), over all GT pixels and over the GT pixels whose
   match lies inside the right image (x - d >= 0: the only ones a matcher can find), for
   ``--max-disp auto`` (minimum 0) and for both bounds estimated;
 * accuracy: each matcher's EPE (all GT pixels, dense map) through the one benchmark loop
@@ -34,7 +34,7 @@ from cade_cli.evaluation.loop import run_benchmark
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.evaluation.report import markdown_row
 from cade_cli.matching import MATCHERS
-from cade_cli.range import AUTO, resolve_range
+from cade_cli.scale.range import AUTO, resolve_range
 
 DATASETS = ("middlebury14", "middlebury05", "kitti2015", "kitti2012", "flyingthings3d")
 COVERAGE_TARGET = 0.99

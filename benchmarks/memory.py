@@ -22,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cade_cli.disparity_io import read_disparity
+from cade_cli.io.disparity import read_disparity
 from cade_cli.evaluation.metrics import end_point_error
 
 

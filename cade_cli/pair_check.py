@@ -7,7 +7,7 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
 
 1. both bands are downscaled by :func:`check_factor` (area averaging, width kept at least
    :data:`CHECK_WIDTH` px) and matched sparsely with ORB features on their gradient images
-   (:func:`cade_cli.rectification.sparse_matches`: the detector the rig self-check uses,
+   (:func:`cade_cli.rigs.rectification.sparse_matches`: the detector the rig self-check uses,
    made cheap; bands from different filters match, contrast inversions included), and
    the row of each match refined to a fraction of a pixel (:func:`subpixel_row_shift`);
 2. the row difference of the matches is fitted as a vertical offset plus a rotation about
@@ -15,7 +15,7 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
    vote over rotations of up to :data:`MAX_ROTATION_DEG` (:func:`dominant_line`: cross-band
    matches hold many wrong ones, spread over every row difference), then refined on the
    matches near it by the rig self-check's robust fit
-   (:func:`cade_cli.rectification.fit_vertical_misalignment`); the matches it keeps are
+   (:func:`cade_cli.rigs.rectification.fit_vertical_misalignment`); the matches it keeps are
    the pair's trusted matches;
 3. their horizontal offsets ``x_left - x_right`` are disparities (px): mostly negative
    with a non-negative range means LEFT and RIGHT are swapped; mostly outside the range
@@ -37,8 +37,8 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.range import range_margin
-from cade_cli.rectification import fit_vertical_misalignment, gradient_image, sparse_matches
+from cade_cli.scale.range import range_margin
+from cade_cli.rigs.rectification import fit_vertical_misalignment, gradient_image, sparse_matches
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""
@@ -101,7 +101,7 @@ class PairCheck:
             tolerance, in [0, 1].
         searched: the inclusive range checked against, px.
         suggested: a range holding the trusted matches, px (their percentiles widened by
-            :func:`cade_cli.range.range_margin`); None when inconclusive.
+            :func:`cade_cli.scale.range.range_margin`); None when inconclusive.
         factor: the downscale the pair was matched at (1, 2, 4, ...).
         problems: what is wrong, a subset of :data:`PROBLEMS` in that order; empty: nothing found.
     """

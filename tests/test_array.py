@@ -1,4 +1,4 @@
-"""Camera arrays (cade_cli.array): a rendered 3x3 array with known geometry and known
+"""Camera arrays (cade_cli.rigs.array): a rendered 3x3 array with known geometry and known
 per-band responses; the fused disparity is measured against the truth, and every
 registered band against the band rendered from the reference viewpoint."""
 
@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cade_cli.array import (
+from cade_cli.rigs.array import (
     ArrayCamera,
     array_geometry,
     baseline_frame,
@@ -26,7 +26,7 @@ from cade_cli.array import (
     write_array_cube,
 )
 from cade_cli.errors import CadeError
-from cade_cli.rig import rig_from_dict
+from cade_cli.rigs.rig import rig_from_dict
 from synthetic import smooth_texture
 
 SHAPE = (120, 160)
@@ -390,7 +390,7 @@ def test_register_array_and_array_score_commands(array_files, rendered, tmp_path
                            "--vis", tmp_path / "fused.png"], capsys)
     assert code == 0, err
     assert "9 cameras onto c4" in out and "census-sgm" in out
-    from cade_cli.disparity_io import read_disparity
+    from cade_cli.io.disparity import read_disparity
 
     epe, _ = _errors(np.nan_to_num(read_disparity(tmp_path / "fused.pfm"), nan=0.0), rendered)
     assert epe < 0.35
@@ -432,7 +432,7 @@ def test_msir_rig_and_parallax_beat_the_affine_alone(shared_data, tmp_path, caps
     import sys
     from pathlib import Path
 
-    from cade_cli.rig import load_rig
+    from cade_cli.rigs.rig import load_rig
 
     folder = shared_data / "msir-outdoor"
     if not folder.is_dir():

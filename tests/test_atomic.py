@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cade_cli.atomic import (
+from cade_cli.io.atomic import (
     atomic_output,
     atomic_outputs,
     check_writable,

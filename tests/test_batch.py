@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cade_cli.batch import (
+from cade_cli.scale.batch import (
     Pair, PairOptions, cap_jobs, is_finished, pair_memory_bytes, pairs_from_manifest, pairs_from_patterns,
 )
-from cade_cli.disparity_io import read_disparity
+from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
 from synthetic import render_pair
 from cli_runner import run_cade, write_png16
@@ -232,7 +232,7 @@ def test_killed_workers_are_replaced_and_no_output_is_lost(tmp_path, rng):
     import os
     import signal
 
-    from cade_cli.batch import run_local
+    from cade_cli.scale.batch import run_local
 
     pairs = slow_pairs(tmp_path, rng, 6)
     results = run_local(pairs, jobs=2, threads=1)
@@ -249,7 +249,7 @@ def test_killed_workers_are_replaced_and_no_output_is_lost(tmp_path, rng):
 def test_stopping_a_local_run_stops_its_workers_and_keeps_finished_outputs(tmp_path, rng):
     import multiprocessing
 
-    from cade_cli.batch import run_local
+    from cade_cli.scale.batch import run_local
 
     pairs = slow_pairs(tmp_path, rng, 8)
     results = run_local(pairs, jobs=2, threads=1)
@@ -278,7 +278,7 @@ def test_two_files_of_one_name_on_a_side_are_refused(tmp_path):
 def memory_limit_that_tiles() -> str:
     """A --memory-limit a 96x192 pair over 17 disparities does not fit whole (census-sgm:
     about 10 MB beyond the process's base), matched as a handful of tiles instead."""
-    from cade_cli.tiling import BASE_BYTES
+    from cade_cli.scale.tiling import BASE_BYTES
 
     return f"{(BASE_BYTES + 6000 * 2**10) // 2**10}KB"
 
@@ -320,8 +320,8 @@ def test_memory_limit_tiles_each_pair_as_disparity_does_and_a_new_limit_redoes_t
 
 
 def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp_path):
-    from cade_cli.batch import job_memory_bytes
-    from cade_cli.tiling import BASE_BYTES
+    from cade_cli.scale.batch import job_memory_bytes
+    from cade_cli.scale.tiling import BASE_BYTES
 
     for name, shape in (("small", (16, 32)), ("large", (64, 128))):
         write_png16(tmp_path / f"{name}.png", np.zeros(shape))
@@ -339,7 +339,7 @@ def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp
 
 
 def test_jobs_are_lowered_to_what_the_largest_pair_leaves_room_for(cameras, capsys, monkeypatch):
-    from cade_cli import batch
+    from cade_cli.scale import batch
 
     planned = pair_memory_bytes("census-sgm", 96, 48, 17)
     monkeypatch.setattr(batch, "available_memory_bytes", lambda: int(1.5 * planned / batch.MEMORY_HEADROOM))
@@ -354,7 +354,7 @@ def rig_cameras(tmp_path, rng) -> Path:
     views of a textured plane, at 1.2 and 1.5 m."""
     import cv2
 
-    from cade_cli.rig import save_rig
+    from cade_cli.rigs.rig import save_rig
     from test_rig import scene_pair, synthetic_rig
 
     save_rig(synthetic_rig(), tmp_path / "rig.json")
@@ -367,7 +367,7 @@ def rig_cameras(tmp_path, rng) -> Path:
 
 
 def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras, capsys):
-    from cade_cli.rig import Rig, load_rig, save_rig
+    from cade_cli.rigs.rig import Rig, load_rig, save_rig
 
     root = rig_cameras
     rig_options = ["--rig", root / "rig.json", "--frame", "original", "-m", "sgbm", "--max-disp", 48]
@@ -408,7 +408,7 @@ def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras,
 def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_it(rig_cameras, capsys):
     """--max-disp auto and a --memory-limit that tiles, with a rig: each pair's range is its
     own, announced and logged as without a rig, and the bytes are `cade disparity --rig`'s."""
-    from cade_cli.tiling import BASE_BYTES
+    from cade_cli.scale.tiling import BASE_BYTES
     from test_rig import plane_disparity
 
     root = rig_cameras
@@ -440,7 +440,7 @@ def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_i
             assert (root / "out" / f"{name}{suffix}").read_bytes() == (single / f"{name}{suffix}").read_bytes(), suffix
         assert np.nanmedian(read_disparity(single / f"{name}.pfm")) == pytest.approx(plane_disparity(depth), abs=1.0)
     # the --jobs plan: a rig's pair that does not fit the limit is tiled within it, so the limit is its plan
-    from cade_cli.batch import job_memory_bytes
+    from cade_cli.scale.batch import job_memory_bytes
 
     options = PairOptions(method="sgbm", max_disp="auto", rig=str(root / "rig.json"),
                           memory_limit=BASE_BYTES + 40 * 2**20)
@@ -459,7 +459,7 @@ RIG_BATCH_ERRORS = {
 
 @pytest.mark.parametrize("case", RIG_BATCH_ERRORS)
 def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, monkeypatch, case):
-    from cade_cli.rig import save_rig
+    from cade_cli.rigs.rig import save_rig
     from test_rig import synthetic_rig
 
     save_rig(synthetic_rig(), cameras / "rig.json")
@@ -472,8 +472,8 @@ def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, mon
 
 
 def test_stale_temporaries_of_a_pair_go_nested_ones_included_and_no_other_file(tmp_path):
-    from cade_cli.atomic import temporary_sibling
-    from cade_cli.batch import remove_stale_temporaries
+    from cade_cli.io.atomic import temporary_sibling
+    from cade_cli.scale.batch import remove_stale_temporaries
 
     output = tmp_path / "0.pfm"
     outer = temporary_sibling(output)

@@ -12,8 +12,8 @@ import pytest
 import tifffile
 
 from cade_cli import cli
-from cade_cli.disparity_io import read_disparity
-from cade_cli.imageio import load_image
+from cade_cli.io.disparity import read_disparity
+from cade_cli.io.images import load_image
 from synthetic import render_pair
 from cli_runner import run_cade, write_png16
 
@@ -108,7 +108,7 @@ def test_register_writes_reference_registered_and_validity(pair_files, tmp_path,
 def test_register_with_a_given_disparity(pair_files, tmp_path, capsys):
     pair, left, right = pair_files
     disparity = tmp_path / "gt.pfm"
-    from cade_cli.disparity_io import write_disparity
+    from cade_cli.io.disparity import write_disparity
 
     write_disparity(disparity, pair.disparity)
     out = tmp_path / "registered.tiff"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.disparity_io import (
+from cade_cli.io.disparity import (
     DISPARITY_SUFFIXES,
     colorize_disparity,
     disparity_picture,
@@ -21,7 +21,7 @@ from cade_cli.disparity_io import (
     write_visualization,
 )
 from cade_cli.errors import CadeError
-from cade_cli.imageio import read_band
+from cade_cli.io.images import read_band
 
 
 def _signed_disparity(rng: np.random.Generator) -> np.ndarray:

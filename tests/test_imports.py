@@ -15,22 +15,19 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "cade_cli"
 
 LAYERS: dict[str, int] = {
-    # 0: foundations (no cade_cli import but each other)
-    "cade_cli.errors": 0, "cade_cli.checksum": 0, "cade_cli.atomic": 0, "cade_cli.allocator": 0,
-    "cade_cli.imageio": 0, "cade_cli.disparity_io": 0, "cade_cli.spectral": 0, "cade_cli.model_card": 0,
-    "cade_cli.pictures": 0,
+    # 0: foundations (no cade_cli import but each other): errors, reading and writing, the transform
+    "cade_cli.errors": 0, "cade_cli.allocator": 0, "cade_cli.spectral": 0, "cade_cli.model_card": 0,
+    "cade_cli.io": 0,
     # 1: matchers
     "cade_cli.matching": 1,
-    # 2: the library's entry points
-    "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.registration_io": 2,
-    "cade_cli.rig": 2, "cade_cli.calibration": 2, "cade_cli.rectification": 2,
-    "cade_cli.rig_pair": 2, "cade_cli.pair_check": 2,
-    "cade_cli.array": 2, "cade_cli.range": 2, "cade_cli.tiling": 2,
+    # 2: the library's entry points: one pair, rigs, scale (range, tiles)
+    "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.io.registered": 2, "cade_cli.pair_check": 2,
+    "cade_cli.rigs": 2, "cade_cli.scale": 2,
     # 3: data sets, then the evaluation built on them
     "cade_cli.data": 3,
     "cade_cli.evaluation": 4,
     # 4: many pairs (uses the evaluation's thread setting; engines: processes, Dask)
-    "cade_cli.batch": 4,
+    "cade_cli.scale.batch": 4,
     # 5: the command line and the package root
     "cade_cli.cli": 5, "cade_cli.__main__": 5, "cade_cli": 5,
     # training: may use everything below the CLI; nothing but itself imports it

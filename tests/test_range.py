@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.range import AUTO, coarse_factor, estimate_range, parse_bound, resolve_range
+from cade_cli.scale.range import AUTO, coarse_factor, estimate_range, parse_bound, resolve_range
 from synthetic import render_pair
 
 
@@ -68,7 +68,7 @@ def test_disparity_command_announces_the_auto_range(tmp_path, rng, capsys):
     import cv2
 
     from cade_cli import cli
-    from cade_cli.disparity_io import read_disparity
+    from cade_cli.io.disparity import read_disparity
 
     pair = render_pair(rng, (64, 160), background=(-6.0, 0.0), foreground=(9.0, 0.0))
     paths = [tmp_path / "left.png", tmp_path / "right.png"]

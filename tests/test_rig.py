@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.calibration import CameraImages, calibrate_rig, detect_board, pair_views, parse_board
-from cade_cli.disparity_io import read_disparity
+from cade_cli.rigs.calibration import CameraImages, calibrate_rig, detect_board, pair_views, parse_board
+from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
-from cade_cli.rectification import (
+from cade_cli.rigs.rectification import (
     correct_vertical_misalignment, measure_vertical_misalignment, rectify_pair, stereo_rectification,
 )
-from cade_cli.rig import RIG_VERSION, Camera, Rig, load_rig, rig_from_dict, rig_to_dict, save_rig
+from cade_cli.rigs.rig import RIG_VERSION, Camera, Rig, load_rig, rig_from_dict, rig_to_dict, save_rig
 from synthetic import smooth_texture
 from cli_runner import run_cade
 
@@ -437,7 +437,7 @@ def test_both_bounds_auto_with_the_other_camera_left_of_the_reference(rig_scene,
 
 def test_disparity_with_a_rig_and_a_memory_limit_matches_tiles_as_the_whole_pair(rig_scene, tmp_path, capsys):
     """A --memory-limit the rectified pair does not fit: matched as tiles, which agree with the whole match."""
-    from cade_cli.tiling import BASE_BYTES
+    from cade_cli.scale.tiling import BASE_BYTES
 
     rig, left, right = rig_scene
     args = ["disparity", "--rig", rig, left, right, "--max-disp", 64, "-m", "sgbm", "--fill", "none", "--depth"]

@@ -1,4 +1,4 @@
-"""Tiled matching within a memory budget (cade_cli.tiling): the tiles fit, their ranges
+"""Tiled matching within a memory budget (cade_cli.scale.tiling): the tiles fit, their ranges
 cover the truth, and away from the seams the stitched map is the untiled one."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pytest
 
 from cade_cli.errors import CadeError
 from cade_cli.stereo import estimate_disparity
-from cade_cli.tiling import (
+from cade_cli.scale.tiling import (
     BASE_BYTES,
     IMAGE_BYTES,
     LEARNED_COLLAR,
@@ -122,7 +122,7 @@ def test_a_budget_too_small_for_any_tile_says_what_it_needs(pair):
 
 def test_disparity_command_tiles_a_pair_the_untiled_path_refuses(tmp_path, pair, capsys, monkeypatch):
     from cade_cli import stereo
-    from cade_cli.disparity_io import read_disparity
+    from cade_cli.io.disparity import read_disparity
 
     left, right = write_png16(tmp_path / "l.png", pair.left), write_png16(tmp_path / "r.png", pair.right)
     # the untiled path refuses this pair under a small volume limit...

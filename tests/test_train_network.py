@@ -255,7 +255,7 @@ def make_real_scene(folder: Path, rng: np.random.Generator) -> None:
     """A scene in the MiddEval3 layout: a random texture shifted by 5 px, ground truth 5."""
     import cv2
 
-    from cade_cli.disparity_io import write_disparity
+    from cade_cli.io.disparity import write_disparity
 
     folder.mkdir(parents=True)
     texture = (rng.random((48, 100, 3)) * 255).astype(np.uint8)

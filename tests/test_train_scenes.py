@@ -223,7 +223,7 @@ def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_
     reproduces the left view (rows flipped or not)."""
     import cv2
 
-    from cade_cli.disparity_io import write_disparity
+    from cade_cli.io.disparity import write_disparity
     from cade_cli.train.real import RealScenes
 
     rng = np.random.default_rng(0)

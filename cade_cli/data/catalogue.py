@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cade_cli.atomic import check_writable_folder
+from cade_cli.io.atomic import check_writable_folder
 from cade_cli.data.dataset import Dataset, DatasetSource
 from cade_cli.data.fetch import BASE_URL_ENV, install, mirror_url
 from cade_cli.data.flyingthings3d import FLYINGTHINGS3D

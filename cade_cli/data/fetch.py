@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Literal
 from urllib.parse import urlsplit
 
 from cade_cli import __version__
-from cade_cli.checksum import CHUNK_BYTES, file_sha256
+from cade_cli.io.checksum import CHUNK_BYTES, file_sha256
 from cade_cli.errors import CadeError
 
 if TYPE_CHECKING:

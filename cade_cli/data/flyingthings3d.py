@@ -7,7 +7,7 @@ from functools import partial
 from pathlib import Path
 
 from cade_cli.data.dataset import Dataset, DatasetSource, Scene, make_scene
-from cade_cli.disparity_io import read_disparity
+from cade_cli.io.disparity import read_disparity
 
 PAGE = "https://lmb.informatik.uni-freiburg.de/resources/datasets/SceneFlowDatasets.en.html"
 

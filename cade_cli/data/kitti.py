@@ -14,7 +14,7 @@ import numpy as np
 
 from cade_cli.data.dataset import Dataset, DatasetSource, Scene, make_scene
 from cade_cli.data.fetch import Archive, Expected
-from cade_cli.disparity_io import read_disparity
+from cade_cli.io.disparity import read_disparity
 
 HOST = "https://s3.eu-central-1.amazonaws.com/avg-kitti"
 

@@ -22,7 +22,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from cade_cli.allocator import retain_freed_memory
-from cade_cli.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output
 from cade_cli.data import Dataset, Scene, get_dataset
 from cade_cli.errors import CadeError, lookup
 from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
@@ -328,11 +328,11 @@ def error_picture(disparity: np.ndarray, gt: np.ndarray) -> np.ndarray:
     bar in px of error and a legend of those colours drawn under it.
 
     Returns:
-        (H + legend, max(W, 360), 3) uint8, B, G, R (:func:`cade_cli.pictures.with_legend`).
+        (H + legend, max(W, 360), 3) uint8, B, G, R (:func:`cade_cli.io.pictures.with_legend`).
     """
     import cv2
 
-    from cade_cli.pictures import ColourBar, Swatch, colour_map, with_legend
+    from cade_cli.io.pictures import ColourBar, Swatch, colour_map, with_legend
 
     error = np.abs(np.asarray(disparity, np.float64) - gt)
     colour = colour_map(error, colormap=cv2.COLORMAP_INFERNO, low=0.0, high=ERROR_SCALE_PX, missing=NO_ESTIMATE_COLOUR)
@@ -351,7 +351,7 @@ def save_maps(folder: Path, stem: str, disparity: np.ndarray, gt: np.ndarray) ->
     with its scale and legend) into ``folder``."""
     import cv2
 
-    from cade_cli.disparity_io import write_disparity
+    from cade_cli.io.disparity import write_disparity
 
     folder.mkdir(parents=True, exist_ok=True)
     stem = stem.replace("/", "_").replace(">", "to")

@@ -10,7 +10,7 @@ A protocol turns one RGB stereo pair into matching tasks on single bands:
   luminance 0.299 R + 0.587 G + 0.114 B), one task, scored.
 
 Channel indices are 0, 1, 2 = R, G, B of (H, W, 3) images in R, G, B order
-(:func:`cade_cli.imageio.load_image`). Every map a protocol returns has been through the
+(:func:`cade_cli.io.images.load_image`). Every map a protocol returns has been through the
 one fill stage, :func:`cade_cli.matching.disparity.densify`, here and nowhere else in
 the evaluation.
 """
@@ -27,7 +27,7 @@ import numpy as np
 
 from cade_cli.errors import CadeError, lookup
 from cade_cli.evaluation.timing import Timing, measure
-from cade_cli.imageio import luminance
+from cade_cli.io.images import luminance
 from cade_cli.matching.base import DisparityResult
 from cade_cli.matching.disparity import densify
 

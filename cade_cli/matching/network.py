@@ -32,7 +32,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from cade_cli.checksum import file_sha256
+from cade_cli.io.checksum import file_sha256
 from cade_cli.errors import CadeError
 from cade_cli.matching.base import DisparityRange
 from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
@@ -91,7 +91,7 @@ def onnx_session(path: Path, sha256: str):
     # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
     options.add_session_config_entry(ALLOW_SPINNING, "0")
     # No arena: it keeps the peak of every input shape it has seen, so tiles of many shapes
-    # (cade_cli.tiling) grew the process past its budget (docs/scale.md, "Tiling"); the
+    # (cade_cli.scale.tiling) grew the process past its budget (docs/scale.md, "Tiling"); the
     # run time of a pair is the same without it.
     options.enable_cpu_mem_arena = False
     return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])

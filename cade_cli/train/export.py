@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from cade_cli.checksum import file_sha256
+from cade_cli.io.checksum import file_sha256
 from cade_cli.model_card import write_card
 from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
 from cade_cli.train.networks import network_of

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cade_cli.checksum import file_sha256
+from cade_cli.io.checksum import file_sha256
 from cade_cli.train.scenes import TexturePool
 
 CALIBRATION_SEED = 2 * 10**6

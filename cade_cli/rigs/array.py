@@ -1,6 +1,6 @@
 """Camera arrays: N cameras registered onto the reference camera as one multi-band cube.
 
-An array is a :class:`~cade_cli.rig.Rig` whose cameras all look the same way from
+An array is a :class:`~cade_cli.rigs.rig.Rig` whose cameras all look the same way from
 (nearly) one plane. Each camera is first brought onto the *reference plane*, the
 reference camera's image:
 
@@ -41,11 +41,11 @@ import cv2
 import numpy as np
 import tifffile
 
-from cade_cli.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output
 from cade_cli.errors import CadeError
-from cade_cli.imageio import check_input_file, read_tiff_array
+from cade_cli.io.images import check_input_file, read_tiff_array
 from cade_cli.matching.disparity import densify, visible_in_right_view
-from cade_cli.rig import Camera, PlaneMapping, Rig
+from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, estimate_disparity
 
 CUBE_FORMAT = "cade-array-cube"

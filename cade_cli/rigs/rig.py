@@ -31,7 +31,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from cade_cli.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output
 from cade_cli.errors import CadeError
 
 RIG_FORMAT = "cade-rig"

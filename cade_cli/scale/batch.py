@@ -3,11 +3,11 @@
 A batch is a list of :class:`Pair` (from two glob patterns matched by file name,
 :func:`pairs_from_patterns`, or a manifest CSV, :func:`pairs_from_manifest`). Each pair
 is one job, :func:`run_pair`: it reads the two bands, resolves the range (``auto`` bounds
-by :func:`cade_cli.range.resolve_range`), calls :func:`cade_cli.tiling.estimate_disparity_tiled`
+by :func:`cade_cli.scale.range.resolve_range`), calls :func:`cade_cli.scale.tiling.estimate_disparity_tiled`
 (the path of ``cade disparity``: the pair matched whole when it fits ``--memory-limit``,
-else as tiles) or, with a rig, :func:`cade_cli.rig_pair.match_rig_pair` (the path of
+else as tiles) or, with a rig, :func:`cade_cli.rigs.pair.match_rig_pair` (the path of
 ``cade disparity --rig``, which does both on the rectified pair), and writes every output
-of the pair with :func:`cade_cli.atomic.atomic_outputs`: the disparity, the optional
+of the pair with :func:`cade_cli.io.atomic.atomic_outputs`: the disparity, the optional
 visualisation, validity, confidence, depth and points, and last a *record* beside the
 disparity (``<output>.cade.json``) that holds the sha256 of the inputs and of every
 output and the options that made them.
@@ -55,15 +55,15 @@ from pathlib import Path
 
 from cade_cli import __version__
 from cade_cli.allocator import retain_freed_memory
-from cade_cli.atomic import atomic_outputs, intended_path
-from cade_cli.checksum import file_sha256
-from cade_cli.disparity_io import DISPARITY_SUFFIXES
+from cade_cli.io.atomic import atomic_outputs, intended_path
+from cade_cli.io.checksum import file_sha256
+from cade_cli.io.disparity import DISPARITY_SUFFIXES
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
-from cade_cli.imageio import SUPPORTED_IMAGE_SUFFIXES
-from cade_cli.range import AUTO, RangeEstimate, parse_bound
+from cade_cli.io.images import SUPPORTED_IMAGE_SUFFIXES
+from cade_cli.scale.range import AUTO, RangeEstimate, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
-from cade_cli.tiling import BASE_BYTES, available_memory_bytes, default_memory_limit, matching_memory_bytes
+from cade_cli.scale.tiling import BASE_BYTES, available_memory_bytes, default_memory_limit, matching_memory_bytes
 
 RECORD_SUFFIX = ".cade.json"
 """The record of a finished pair: ``<output><RECORD_SUFFIX>`` beside its disparity file."""
@@ -81,7 +81,7 @@ ATTEMPTS = 2
 
 WORKER_BASE_BYTES = BASE_BYTES
 """Resident memory of a worker before its first pair: Python, NumPy, OpenCV, onnxruntime.
-With :data:`~cade_cli.tiling.PIXEL_BYTES` per pixel the plan sits just above the measured
+With :data:`~cade_cli.scale.tiling.PIXEL_BYTES` per pixel the plan sits just above the measured
 peaks of ``cade``: 0.30 GiB against 0.25-0.27 GiB on 640x480 (docs/scale.md, "Throughput"),
 1.46 GB against 1.45 GB on 6 megapixels (models/README.md)."""
 MEMORY_HEADROOM = 0.8
@@ -147,9 +147,9 @@ class PairOptions:
                 raise CadeError(f"{option} needs --rig (the rig file that says how to rectify the pairs); add --rig "
                                 f"RIG.json or drop {option}")
             return
-        from cade_cli.rectification import FRAMES
-        from cade_cli.rig import load_rig
-        from cade_cli.rig_pair import rig_pair_rectification
+        from cade_cli.rigs.rectification import FRAMES
+        from cade_cli.rigs.rig import load_rig
+        from cade_cli.rigs.pair import rig_pair_rectification
 
         if self.frame not in FRAMES:
             raise CadeError(f"unknown --frame {self.frame!r}; choose rectified or original")
@@ -221,7 +221,7 @@ class PairResult:
         attempts: runs it took (0 when skipped).
         notes: notes for the user (e.g. a colour image converted to luminance).
         peak_rss_mb: the worker's peak resident memory so far (MiB), after this pair.
-        tiles: tiles the pair was matched as (:mod:`cade_cli.tiling`); 0: whole.
+        tiles: tiles the pair was matched as (:mod:`cade_cli.scale.tiling`); 0: whole.
         warnings: what the pair check found wrong with the pair (:mod:`cade_cli.pair_check`).
         pair_check: the pair check's measurements (:meth:`~cade_cli.pair_check.PairCheck.record`):
             vertical offset (px), rotation (degrees), ...; None with a rig (its self-check is in the record).
@@ -438,7 +438,7 @@ def skipped_result(pair: Pair) -> PairResult:
 
 
 def remove_stale_temporaries(pairs: Iterable[Pair]) -> int:
-    """Delete the hidden temporaries (:func:`cade_cli.atomic.temporary_sibling`) of the
+    """Delete the hidden temporaries (:func:`cade_cli.io.atomic.temporary_sibling`) of the
     pairs' outputs that a killed run left behind; returns how many. Call it only while no
     other run writes these outputs."""
     removed = 0
@@ -470,16 +470,16 @@ def peak_rss_mb() -> float:
 def run_pair(pair: Pair) -> PairResult:
     """Match one pair and write its outputs and record, all or nothing.
 
-    Without a rig the pair goes through :func:`cade_cli.tiling.estimate_disparity_tiled`
+    Without a rig the pair goes through :func:`cade_cli.scale.tiling.estimate_disparity_tiled`
     (whole when it fits the memory limit, else as tiles), as ``cade disparity`` does; with
-    one through :func:`cade_cli.rig_pair.match_rig_pair` and
-    :func:`~cade_cli.rig_pair.write_rig_outputs`, as ``cade disparity --rig`` does.
+    one through :func:`cade_cli.rigs.pair.match_rig_pair` and
+    :func:`~cade_cli.rigs.pair.write_rig_outputs`, as ``cade disparity --rig`` does.
 
     Returns a ``done`` result, or a ``failed`` one for a :class:`CadeError` (bad input:
     unreadable image, a range that does not fit, ...). Any other exception propagates,
     so that the engine can retry the pair.
     """
-    from cade_cli.imageio import read_band
+    from cade_cli.io.images import read_band
 
     started = time.perf_counter()
     options = pair.options
@@ -535,12 +535,12 @@ class _Matched:
 
 def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
     """The pair as ``cade disparity`` matches it: its range resolved, matched whole or as
-    tiles within the memory limit (:func:`cade_cli.tiling.estimate_disparity_tiled`)."""
-    from cade_cli.disparity_io import write_match_outputs
+    tiles within the memory limit (:func:`cade_cli.scale.tiling.estimate_disparity_tiled`)."""
+    from cade_cli.io.disparity import write_match_outputs
     from cade_cli.matching import densify
     from cade_cli.pair_check import check_pair
-    from cade_cli.range import resolve_range
-    from cade_cli.tiling import estimate_disparity_tiled
+    from cade_cli.scale.range import resolve_range
+    from cade_cli.scale.tiling import estimate_disparity_tiled
 
     options = pair.options
     if left.shape != right.shape:
@@ -584,12 +584,12 @@ def _range_note(options: PairOptions, estimate: RangeEstimate | None) -> str | N
 
 
 def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
-    """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rig_pair`:
+    """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rigs.pair`:
     an ``auto`` bound estimated on the rectified pair, matched whole or as tiles within the
     memory limit); a rectification self-check above tolerance, or skipped, is a note."""
-    from cade_cli.rectification import VERTICAL_TOLERANCE_PX
-    from cade_cli.rig import load_rig
-    from cade_cli.rig_pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
+    from cade_cli.rigs.rectification import VERTICAL_TOLERANCE_PX
+    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
 
     options = pair.options
     rig = load_rig(options.rig)
@@ -659,8 +659,8 @@ def planned_pair_memory(pair: Pair) -> tuple[int, int, int]:
 
 @functools.lru_cache(maxsize=4)
 def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
-    from cade_cli.rig import load_rig
-    from cade_cli.rig_pair import rig_pair_rectification
+    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.pair import rig_pair_rectification
 
     return tuple(rig_pair_rectification(load_rig(rig), camera)[1].image_size)
 
@@ -684,7 +684,7 @@ def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) 
 
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file, from its header where it tells, else by decoding it."""
-    from cade_cli.imageio import header_size, load_image
+    from cade_cli.io.images import header_size, load_image
 
     with open(path, "rb") as stream:
         size = header_size(stream.read(1 << 16))

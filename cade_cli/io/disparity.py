@@ -21,9 +21,9 @@ import cv2
 import numpy as np
 import tifffile
 
-from cade_cli.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output
 from cade_cli.errors import CadeError
-from cade_cli.imageio import (
+from cade_cli.io.images import (
     MAX_IMAGE_SAMPLES,
     check_image_size,
     check_input_file,
@@ -32,7 +32,7 @@ from cade_cli.imageio import (
     read_bytes,
     read_tiff_array,
 )
-from cade_cli.pictures import (
+from cade_cli.io.pictures import (
     INVALID_COLOUR, ROBUST_PERCENTILES, ColourBar, Swatch, colour_map, format_value, robust_range, scaled_picture,
 )
 
@@ -49,7 +49,7 @@ _PFM_HEADER_LIMIT = 256
 def write_disparity(path: Path, disparity: np.ndarray) -> None:
     """Write an (H, W) disparity map, the format chosen by ``path``'s extension.
 
-    Written all-or-nothing through :func:`cade_cli.atomic.atomic_output`. NaN and
+    Written all-or-nothing through :func:`cade_cli.io.atomic.atomic_output`. NaN and
     ``±inf`` both count as invalid and are stored as the format's marker (the caller's
     array is not modified). In a PNG a valid value that would round to 0 (d < 1/512)
     is stored as 1 (d = 1/256) so that it stays valid, and values in
@@ -178,14 +178,14 @@ def colorize_disparity(
 
 def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float] | None = None) -> np.ndarray:
     """A disparity map for looking at: Turbo colours, invalid pixels black, and under it
-    a colour bar in px with its range and a legend (:func:`cade_cli.pictures.with_legend`).
+    a colour bar in px with its range and a legend (:func:`cade_cli.io.pictures.with_legend`).
 
     Args:
         disparity: (H, W) pixels, NaN (any non-finite) = invalid.
         value_range: (min, max) px mapped to the ends of the colour bar, values beyond
             clipped to the end colours: the same range gives the same colour to the same
             disparity in every picture. Default: the 1st-99th percentile of the valid
-            disparities (:func:`cade_cli.pictures.robust_range`), so a few outliers do
+            disparities (:func:`cade_cli.io.pictures.robust_range`), so a few outliers do
             not squeeze the rest into one colour.
 
     Returns:

@@ -4,7 +4,7 @@ As Ames Stereo Pipeline's ``parallel_stereo`` and CNES CARS do, a pair too large
 memory budget is cut into tiles of the left image, each matched on its own with its own
 disparity range, seeded from a low-resolution pass over the whole pair:
 
-1. **The coarse pass.** :func:`cade_cli.range.coarse_match` matches the pair at a coarse
+1. **The coarse pass.** :func:`cade_cli.scale.range.coarse_match` matches the pair at a coarse
    pyramid level (the pass behind ``--max-disp auto``) over the range asked for.
 2. **The layout.** Tiles are cores of the left image that cover it without overlap, a
    quadtree (step 4), or, when a core side is forced (``core``), a grid of square cores
@@ -18,8 +18,8 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    right are cropped to the same window, so disparities are unchanged; at an image border
    the window shifts inwards and keeps its width. For a learned method the window's first
    row and column are moved back to the network's sampling grid (:func:`window_alignment`).
-3. **The ranges.** A tile's range is :func:`cade_cli.range.confident_bounds` of the coarse
-   estimates over its core and collar, widened by :func:`cade_cli.range.range_margin`, and
+3. **The ranges.** A tile's range is :func:`cade_cli.scale.range.confident_bounds` of the coarse
+   estimates over its core and collar, widened by :func:`cade_cli.scale.range.range_margin`, and
    kept within the range asked for; a tile with too few coarse estimates searches that
    whole range.
 4. **The size.** Starting from the whole image, a core whose window does not fit the
@@ -60,7 +60,7 @@ from cade_cli.matching.base import check_pair
 from cade_cli.matching.learned import LearnedPipeline
 from cade_cli.matching.network import STRIP_PIXELS, choose_variant
 from cade_cli.matching.refinement import SIGN_STEP
-from cade_cli.range import coarse_match, confident_bounds, range_margin
+from cade_cli.scale.range import coarse_match, confident_bounds, range_margin
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, MEMORY_LIMIT_BYTES, estimate_disparity
 
 PIXEL_BYTES = 200

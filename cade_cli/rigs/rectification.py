@@ -27,10 +27,10 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult, densify
-from cade_cli.rig import Camera, Rectification, Rig
-from cade_cli.range import RangeEstimate, resolve_range
+from cade_cli.rigs.rig import Camera, Rectification, Rig
+from cade_cli.scale.range import RangeEstimate, resolve_range
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS
-from cade_cli.tiling import TilePlan, default_memory_limit, estimate_disparity_tiled
+from cade_cli.scale.tiling import TilePlan, default_memory_limit, estimate_disparity_tiled
 
 VERTICAL_TOLERANCE_PX = 0.5
 """Residual vertical misalignment above which the self-check warns."""
@@ -482,9 +482,9 @@ class RigDisparity:
         corrected: True when ``right`` was corrected for ``misalignment`` (``fix_vertical``
             and a misalignment of at least :data:`MIN_CORRECTION_PX`).
         range: the inclusive range searched, px of the rectified frame (``auto`` bounds resolved).
-        range_estimate: how an ``auto`` bound was estimated (:func:`cade_cli.range.estimate_range`), else None.
+        range_estimate: how an ``auto`` bound was estimated (:func:`cade_cli.scale.range.estimate_range`), else None.
         plan: how the rectified pair was matched: whole, or as tiles within the memory
-            limit (:func:`cade_cli.tiling.plan_tiles`).
+            limit (:func:`cade_cli.scale.tiling.plan_tiles`).
     """
 
     result: DisparityResult
@@ -507,8 +507,8 @@ def rig_disparity(
     memory_limit: int | None = None,
 ) -> RigDisparity:
     """Rectify a rig's pair, check it, and match it as ``cade disparity`` matches a pair:
-    the range resolved (:func:`cade_cli.range.resolve_range`), then
-    :func:`cade_cli.tiling.estimate_disparity_tiled` (whole when it fits the memory limit,
+    the range resolved (:func:`cade_cli.scale.range.resolve_range`), then
+    :func:`cade_cli.scale.tiling.estimate_disparity_tiled` (whole when it fits the memory limit,
     else as tiles).
 
     The range is resolved on the rectified bands as the matcher takes them (after the
@@ -529,7 +529,7 @@ def rig_disparity(
             the rectified width. The self-check considers matches up to ``max_disp``
             (the image width while it is ``auto`` or None, since it runs first).
         memory_limit: budget for the whole process, bytes, as ``--memory-limit``; None:
-            :func:`cade_cli.tiling.default_memory_limit`.
+            :func:`cade_cli.scale.tiling.default_memory_limit`.
 
     Raises:
         CadeError: a bad rig or image size (:func:`rectify_pair`), too few self-check

@@ -3,10 +3,10 @@
 LEFT is the image of the rig's reference camera, RIGHT that of another camera
 (:func:`rig_pair_rectification` picks it and its rectification). :func:`check_rig_pair`
 refuses images of the wrong size, :func:`match_rig_pair` rectifies, self-checks and
-matches the pair (:func:`cade_cli.rectification.rig_disparity`: an ``auto`` range estimated
+matches the pair (:func:`cade_cli.rigs.rectification.rig_disparity`: an ``auto`` range estimated
 on the rectified bands, the pair matched whole or as tiles within the memory limit, as
 ``cade disparity`` matches a pair without a rig) and puts the result in the frame asked
-for (:func:`cade_cli.rectification.in_frame`), and :func:`write_rig_outputs` writes the
+for (:func:`cade_cli.rigs.rectification.in_frame`), and :func:`write_rig_outputs` writes the
 outputs asked for. The commands only add their own messages around these.
 """
 
@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.rectification import (
+from cade_cli.rigs.rectification import (
     FramedDisparity, RigDisparity, check_image_size, in_frame, rectification_of, rig_disparity,
 )
-from cade_cli.rig import Rectification, Rig
+from cade_cli.rigs.rig import Rectification, Rig
 
 RIG_OUTPUT_ROLES = ("disparity", "vis", "validity", "confidence", "depth", "points")
 """What :func:`write_rig_outputs` can write: the disparity, and the side outputs of ``cade disparity --rig``."""
@@ -58,10 +58,10 @@ def match_rig_pair(
     Args:
         rig, other: the rig and the camera of ``right`` (:func:`rig_pair_rectification`).
         left, right: (H, W) float bands of the reference camera and of ``other``.
-        frame: ``rectified`` or ``original`` (:data:`cade_cli.rectification.FRAMES`).
+        frame: ``rectified`` or ``original`` (:data:`cade_cli.rigs.rectification.FRAMES`).
         fill: ``row`` (depth and points from the filled map) or ``none``.
         fix_vertical, method, min_disp, max_disp, preprocess, model, memory_limit: as for
-            :func:`~cade_cli.rectification.rig_disparity`: the range in rectified px, a
+            :func:`~cade_cli.rigs.rectification.rig_disparity`: the range in rectified px, a
             bound ``auto`` estimated on the rectified pair; the pair matched whole when it
             fits ``memory_limit`` (bytes; None: the default), else as tiles.
 
@@ -82,7 +82,7 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
 
     ``disparity``: the map (filled unless ``fill`` is ``none``); ``vis``: the colourised
     unfilled disparity (px, with its colour bar; ``vis_range`` (min, max) px fixes its
-    colours, :func:`~cade_cli.disparity_io.disparity_picture`); ``validity``: the mask;
+    colours, :func:`~cade_cli.io.disparity.disparity_picture`); ``validity``: the mask;
     ``confidence``: float32 TIFF; ``depth``: float32 TIFF, metres, NaN where unknown;
     ``points``: binary PLY.
 
@@ -92,8 +92,8 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
     Raises:
         CadeError: a confidence asked of a method that gives none (nothing is written).
     """
-    from cade_cli.disparity_io import write_disparity, write_match_outputs
-    from cade_cli.rectification import write_ply
+    from cade_cli.io.disparity import write_disparity, write_match_outputs
+    from cade_cli.rigs.rectification import write_ply
 
     unknown = set(paths) - set(RIG_OUTPUT_ROLES)
     if unknown:

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from cade_cli.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output
 from cade_cli.registration import Registration
 
 BAND_ORDER: tuple[str, ...] = ("reference", "registered", "valid")
@@ -53,13 +53,13 @@ def registration_picture(registration: Registration, *, mode: str = "overlay") -
     blue, a colour no aligned or misaligned pixel takes.
 
     Returns:
-        (H + legend, max(W, 360), 3) uint8, B, G, R (:func:`cade_cli.pictures.with_legend`).
+        (H + legend, max(W, 360), 3) uint8, B, G, R (:func:`cade_cli.io.pictures.with_legend`).
 
     Raises:
         CadeError: an unknown ``mode``.
     """
     from cade_cli.errors import CadeError
-    from cade_cli.pictures import Swatch, with_legend
+    from cade_cli.io.pictures import Swatch, with_legend
 
     valid = np.asarray(registration.valid, bool)
     both = valid & np.isfinite(registration.registered) & np.isfinite(registration.reference)

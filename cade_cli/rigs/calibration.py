@@ -26,9 +26,9 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.imageio import read_band
-from cade_cli.rectification import stereo_rectification
-from cade_cli.rig import Calibration, Camera, Rig
+from cade_cli.io.images import read_band
+from cade_cli.rigs.rectification import stereo_rectification
+from cade_cli.rigs.rig import Calibration, Camera, Rig
 
 BOARD_KINDS = ("chessboard", "charuco")
 

@@ -1,0 +1,199 @@
+"""``cade batch``: many pairs, resumable, on worker processes or a Dask cluster (docs/scale.md).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cade_cli.cli.options import DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning
+
+
+def batch(
+    left: Annotated[Optional[str], typer.Option("--left", help="Glob pattern of the left images, quoted (e.g. "
+                                                "'cam0/*.png'); paired with --right by file name (or, without "
+                                                "shared names, by the last number in the names).")] = None,
+    right: Annotated[Optional[str], typer.Option("--right", help="Glob pattern of the right images, quoted.")] = None,
+    output_dir: Annotated[Optional[Path], typer.Option("--output-dir", "-o", help="With --left/--right: folder for "
+                                                       "the outputs, <left name>.<format> (created if missing).")] = None,
+    manifest: Annotated[Optional[Path], typer.Option("--manifest", help="CSV with a header row: left,right,output "
+                                                     "and optionally min_disp,max_disp,left_band,right_band (empty = "
+                                                     "the option's value); relative paths start at its folder.")] = None,
+    output_format: Annotated[str, typer.Option("--format", help="With --left/--right: disparity format, pfm, tif, "
+                                               "png (KITTI uint16) or npy.")] = "pfm",
+    method: MethodOption = DEFAULT_METHOD,
+    max_disp: MaxDispAutoOption = None,
+    min_disp: MinDispAutoOption = "0",
+    preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
+    fill: Annotated[str, typer.Option("--fill", help="As `cade disparity --fill`: 'row' (dense) or 'none'.")] = "row",
+    left_band: Annotated[Optional[int], band_option("left")] = None,
+    right_band: Annotated[Optional[int], band_option("right")] = None,
+    vis: Annotated[bool, typer.Option("--vis", help="Also write <name>_vis.png (colourised, with a colour bar in px; "
+                                      "invalid = black).")] = False,
+    vis_range: VisRangeOption = None,
+    validity: Annotated[bool, typer.Option("--validity", help="Also write <name>_validity.png (255 = valid).")] = False,
+    confidence: Annotated[bool, typer.Option("--confidence", help="Also write <name>_confidence.tif (float32, "
+                                             "[0, 1]).")] = False,
+    memory_limit: Annotated[
+        Optional[str], typer.Option("--memory-limit", help="Memory budget of each job, like 4GB or 512MB (default: "
+                                    "half the memory available): a pair that does not fit it whole is matched as "
+                                    "tiles, as by `cade disparity --memory-limit`; --jobs is lowered so that the "
+                                    "jobs fit.", show_default=False)
+    ] = None,
+    rig_file: Annotated[
+        Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): each LEFT is its reference camera's "
+                                     "image, each RIGHT another camera's; every pair is rectified first, as by "
+                                     "`cade disparity --rig` (docs/rigs.md).")
+    ] = None,
+    camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took the RIGHT images "
+                                                  "(default: the rig's rectified pair, else the first other "
+                                                  "camera).")] = None,
+    frame: Annotated[
+        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
+                          "the 'original' one (disparity stays in rectified px).")
+    ] = "rectified",
+    depth: Annotated[bool, typer.Option("--depth", help="With --rig: also write <name>_depth.tif (float32, metres, "
+                                        "NaN unknown).")] = False,
+    points: Annotated[bool, typer.Option("--points", help="With --rig: also write <name>_points.ply (binary PLY, "
+                                         "metres, reference camera frame).")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
+                                               "roll the rectification self-check measures before matching.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="A pair the pair check finds unrectified, swapped or "
+                                         "outside the range searched fails (nothing written for it) instead of "
+                                         "warning.")] = False,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes on this machine, each loading "
+                                      "the model once; lowered if their memory would not fit.")] = 1,
+    threads: Annotated[Optional[int], typer.Option("--threads", min=1, help="Threads of each worker (default: the "
+                                                   "cores shared among --jobs; on a cluster, the workers' own).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="Run on a Dask cluster: its scheduler, "
+                                                     "tcp://host:8786 (needs the 'distributed' extra; docs/scale.md).")] = None,
+    scheduler_file: Annotated[Optional[Path], typer.Option("--scheduler-file", help="Run on the Dask cluster whose "
+                                                           "scheduler wrote this file.")] = None,
+    force: Annotated[bool, typer.Option("--force", help="Redo every pair, even those verified as finished.")] = False,
+    log: Annotated[Optional[Path], typer.Option("--log", help="JSON log of the run (default: cade-batch-log.json in "
+                                                "--output-dir, or <manifest>.log.json).")] = None,
+) -> None:
+    """Disparity of many pairs: resumable, one pair failing does not stop the others, on N processes or a Dask cluster.
+
+    A rerun skips every pair whose outputs are verified (sha256 and options in the record
+    beside each output, <output>.cade.json); --force redoes them. The exit status is 1 if
+    any pair failed.
+    """
+    from contextlib import nullcontext
+
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
+    from rich.text import Text
+
+    from cade_cli.io.atomic import atomic_output
+    from cade_cli.scale.batch import (
+        BatchSummary, PairOptions, available_memory_bytes, cap_jobs, is_finished, job_memory_bytes, log_document,
+        pairs_from_manifest, pairs_from_patterns, remove_stale_temporaries, run_dask, run_local, skipped_result,
+    )
+    from cade_cli.errors import CadeError
+
+    by_pattern = (left, right, output_dir)
+    if manifest is not None and any(value is not None for value in by_pattern):
+        raise CadeError("give either --manifest or --left, --right and --output-dir, not both")
+    if manifest is None and any(value is None for value in by_pattern):
+        missing = [name for name, value in zip(("--left", "--right", "--output-dir"), by_pattern) if value is None]
+        raise CadeError(f"missing {', '.join(missing)}: give --left 'A/*.png' --right 'B/*.png' --output-dir OUT, or "
+                        "--manifest pairs.csv")
+    if scheduler is not None and scheduler_file is not None:
+        raise CadeError("give --scheduler or --scheduler-file, not both")
+    cluster = scheduler is not None or scheduler_file is not None
+    if cluster and jobs != 1:
+        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
+    min_disp, max_disp = parse_range_options(min_disp, max_disp)
+    options = PairOptions(method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, model=model,
+                          fill=fill, left_band=left_band, right_band=right_band,
+                          memory_limit=None if memory_limit is None else parse_memory_limit(memory_limit),
+                          rig=None if rig_file is None else str(rig_file.absolute()), camera=camera, frame=frame,
+                          fix_vertical=fix_vertical, vis=vis, validity=validity, confidence=confidence, depth=depth,
+                          points=points, vis_range=parse_vis_range(vis_range, vis), strict=strict)
+    options.check()
+    if manifest is not None:
+        pairs = pairs_from_manifest(manifest, options=options)
+        log = log if log is not None else manifest.with_name(manifest.stem + ".log.json")
+    else:
+        pairs = pairs_from_patterns(left, right, output_dir, options=options, suffix="." + output_format.lower().lstrip("."))
+        if output_dir.exists() and not output_dir.is_dir():
+            raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
+        output_dir.mkdir(parents=True, exist_ok=True)
+        log = log if log is not None else output_dir / "cade-batch-log.json"
+    check_output(log, suffixes=(".json",), inputs=())
+    remove_stale_temporaries(pairs)  # left by a run that was killed
+    results = [] if force else [skipped_result(pair) for pair in pairs if is_finished(pair)]
+    finished = {result.output for result in results}
+    todo = [pair for pair in pairs if str(pair.output) not in finished]
+    engine_name = f"dask {scheduler or scheduler_file}" if cluster else f"{jobs} local job(s)"
+    if todo and not cluster and jobs > 1:
+        width, height, per_job = job_memory_bytes(todo)  # the largest pair, or the memory limit
+        allowed = cap_jobs(jobs, per_job)
+        if allowed < jobs:
+            print_note(f"--jobs {jobs} lowered to {allowed}: the largest pair, {width}x{height}, may take "
+                  f"{per_job / 2**30:.1f} GB per job (within its memory limit) and "
+                  f"{available_memory_bytes() / 2**30:.1f} GB are available")
+            jobs, engine_name = allowed, f"{allowed} local job(s)"
+    if threads is None and not cluster and jobs > 1:
+        threads = max(1, (os.cpu_count() or 1) // jobs)
+    engine = (run_dask(todo, address=scheduler, scheduler_file=scheduler_file, threads=threads) if cluster
+              else run_local(todo, jobs=jobs, threads=threads))
+    summary = BatchSummary(total=len(pairs), skipped=len(results))
+    config = {"command": ["cade", *sys.argv[1:]] if sys.argv[1:2] == ["batch"] else None, "engine": engine_name,
+              "manifest": None if manifest is None else str(manifest), "left": left, "right": right,
+              "output_dir": None if output_dir is None else str(output_dir), "force": force,
+              "rig": None if rig_file is None else str(rig_file),
+              "options": {key: value for key, value in options.fingerprint().items()}}
+
+    class PairRate(ProgressColumn):
+        def render(self, task) -> Text:
+            rate = task.completed / task.elapsed if task.elapsed else 0.0
+            return Text(f"{rate:.2f} pairs/s")
+
+    console = Console(stderr=True, soft_wrap=True)
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), PairRate(),
+                        TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True,
+                        disable=not console.is_terminal)
+    if summary.skipped:
+        print_note(f"{summary.skipped} of {len(pairs)} pairs already finished (outputs verified); --force redoes them")
+    started = time.perf_counter()
+    shown_notes: set[str] = set()
+    try:
+        with progress if todo else nullcontext():
+            bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
+            for result in engine:
+                results.append(result)
+                summary.add(result)
+                for note in result.notes:
+                    if note not in shown_notes:
+                        shown_notes.add(note)
+                        progress.console.print(f"note: {note}", highlight=False, markup=False)
+                for warning in result.warnings:  # the pair check's findings
+                    progress.console.print(f"warning: {result.output}: {warning}", highlight=False, markup=False)
+                if result.status == "failed":
+                    progress.console.print(f"warning: pair {result.left}, {result.right} failed: {result.error}",
+                                           highlight=False, markup=False)
+                elif result.range_note is not None:
+                    progress.console.print(f"note: {result.output}: {result.range_note}", highlight=False, markup=False)
+                progress.update(bar, advance=1)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        print_warning(f"interrupted: {summary.done} pair(s) finished in this run, their outputs complete; rerun the same "
+              f"command to go on (finished pairs are skipped); log {log}")
+        raise
+    finally:
+        summary.seconds = time.perf_counter() - started
+        remove_stale_temporaries(todo)
+        with atomic_output(log) as temporary:
+            temporary.write_text(log_document(results, summary, config=config))
+    print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} pairs; "
+          f"{summary.seconds:.1f} s ({summary.pairs_per_minute:.1f} pairs/min, {engine_name}); log {log}")
+    if summary.failed:
+        raise CadeError(f"{summary.failed} of {summary.total} pairs failed (each named above and in {log})")

@@ -1,0 +1,211 @@
+"""Options and checks shared by the commands: the option types, reading a pair, the range and memory
+options, output checks, notes and warnings on stderr.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+
+METHOD_NAMES = ("census-sgm", "zncc-sgm", "sgbm", "cade", "cade-network", "dasc-sgm")
+"""Registered matchers, listed here so that --help needs no heavy import (a test keeps
+this in step with :data:`cade_cli.matching.MATCHERS`)."""
+
+BENCHMARK_METHODS = METHOD_NAMES[:4] + ("dasc-sgm",)
+"""What ``cade benchmark`` compares by default: the matchers of the paper's Table 1 that we
+have (cade-network is cade's first stage, there to analyse the network; name it with --methods)."""
+
+DEFAULT_METHOD = "cade"
+"""The default matcher, here so that --help needs no heavy import (a test keeps it equal
+to :data:`cade_cli.stereo.DEFAULT_METHOD`)."""
+
+MethodOption = Annotated[
+    str,
+    typer.Option(
+        "--method",
+        "-m",
+        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), has the lowest error "
+        "of the four on the cross-spectral benchmark and is about 3x faster than census-sgm, the best "
+        "classical one (docs/results.md).",
+    ),
+]
+
+MaxDispOption = Annotated[
+    Optional[int],
+    typer.Option("--max-disp", min=1, help="Largest disparity searched, px (default: a quarter of the width)."),
+]
+
+MinDispOption = Annotated[
+    int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
+]
+
+MaxDispAutoOption = Annotated[
+    Optional[str],
+    typer.Option("--max-disp", help="Largest disparity searched, px, or 'auto': estimated from a coarse match of the "
+                 "pair, with a margin (docs/scale.md). Default: a quarter of the width."),
+]
+
+MinDispAutoOption = Annotated[
+    str, typer.Option("--min-disp", help="Smallest disparity searched, px (negative for pairs registered to a plane), "
+                      "or 'auto': estimated like --max-disp auto, and possibly negative.")
+]
+
+ModelOption = Annotated[
+    Optional[str],
+    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default, cade-v4) or accurate "
+                 "(cade-v6: fewer gross errors on most benchmark sets, same speed; models/README.md), the path of a "
+                 "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
+                 "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
+]
+
+MemoryLimitOption = Annotated[
+    Optional[str],
+    typer.Option("--memory-limit", help="Memory budget, like 4GB or 512MB (default: half the memory available). A "
+                 "pair that does not fit it whole is matched as overlapping tiles, each with a range seeded from a "
+                 "coarse pass (docs/scale.md, \"Tiling\").", show_default=False),
+]
+
+PreprocessOption = Annotated[
+    str,
+    typer.Option(
+        "--preprocess",
+        help="'cade' (color agnostic transform on both bands), 'none', or 'auto': the matcher's more "
+        "accurate choice on cross-spectral pairs (census-sgm, zncc-sgm: none; sgbm, cade: cade).",
+    ),
+]
+
+VisRangeOption = Annotated[
+    Optional[str],
+    typer.Option("--vis-range", help="With --vis: disparities MIN:MAX (px, e.g. 0:80) given the two end colours of "
+                 "the picture, values beyond clipped to them, so that pictures of two runs compare (default: the "
+                 "1st-99th percentile of the map's valid disparities).", show_default=False),
+]
+
+
+def band_option(side: str) -> object:
+    return typer.Option(f"--{side}-band", min=0, help=f"0-based band of a multi-band {side} file (default: luminance of colour images).")
+
+
+def report_misalignment(found, width: int, *, fixed: bool, corrected: bool) -> None:
+    """Tell the user what the rectification self-check measured (a warning above the tolerance)."""
+    import math
+
+    from cade_cli.rigs.rectification import MIN_CORRECTION_PX, VERTICAL_TOLERANCE_PX
+
+    worst = found.worst(width)
+    measured = (f"offset {found.offset:+.2f} px, roll {math.degrees(found.roll):+.3f} deg (up to {worst:.2f} px at "
+                f"the edges), from {found.matches} matches")
+    if corrected:
+        print_note(f"rectification self-check: {measured}; corrected (--fix-vertical)")
+    elif fixed:
+        print_note(f"rectification self-check: {measured}; below {MIN_CORRECTION_PX} px, left as is (--fix-vertical)")
+    elif worst > VERTICAL_TOLERANCE_PX:
+        print_warning(f"rectification self-check: vertical misalignment {measured}, above {VERTICAL_TOLERANCE_PX} px; "
+              "add --fix-vertical or recalibrate")
+    else:
+        print_note(f"rectification self-check: {measured}")
+
+
+def read_pair(
+    left: Path, right: Path, left_band: int | None, right_band: int | None,
+    names: tuple[str, str] = ("--left-band", "--right-band"),
+):
+    from cade_cli.io.images import read_band
+
+    images = []
+    for path, band, option in ((left, left_band, names[0]), (right, right_band, names[1])):
+        image, note = read_band(path, band)
+        if note:
+            print_note(f"{note}; pick a band with {option} N")
+        images.append(image)
+    return images
+
+
+def warn_if_textureless(left: Path, right: Path, left_image, right_image) -> None:
+    """Warn when much of the pair is flat (:func:`cade_cli.stereo.textureless`): no disparity there."""
+    from cade_cli.stereo import TEXTURE_WINDOW, textureless
+
+    flat = textureless(left_image) | textureless(right_image)
+    share = float(flat.mean())
+    if share == 1.0:
+        print_warning(f"{left} and {right} have no texture at all (constant images?): there is no disparity to find and "
+              "every pixel is marked invalid; check that these are the right, correctly exposed images")
+    elif share >= 0.5:
+        print_warning(f"{100 * share:.0f}% of {left} / {right} is flat (one value over {TEXTURE_WINDOW}x{TEXTURE_WINDOW} px "
+              "in a band: blank, saturated or underexposed); disparity there is marked invalid")
+
+
+def resolve_max_disp(max_disp: int | None, width: int) -> int:
+    from cade_cli.stereo import default_max_disparity
+
+    if max_disp is not None:
+        return max_disp
+    chosen = default_max_disparity(width)
+    print_note(f"--max-disp not given: searching up to {chosen} px (a quarter of the width); "
+          "set it to your scene's largest disparity for speed and accuracy")
+    return chosen
+
+
+def parse_range_options(min_disp: str | int, max_disp: str | int | None) -> tuple[int | str, int | str | None]:
+    """--min-disp and --max-disp as given: whole pixels or 'auto' (:func:`cade_cli.scale.range.parse_bound`)."""
+    from cade_cli.scale.range import parse_bound
+
+    return (parse_bound(min_disp, option="min-disp"),
+            None if max_disp is None else parse_bound(max_disp, option="max-disp", minimum=1))
+
+
+def resolve_range_options(min_disp: int | str, max_disp: int | str | None, left_image, right_image) -> tuple[int, int]:
+    """The searched (min, max), px: 'auto' bounds estimated and announced on stderr, a
+    missing --max-disp defaulted (:func:`resolve_max_disp`)."""
+    from cade_cli.scale.range import AUTO, resolve_range
+
+    if AUTO not in (min_disp, max_disp):
+        return int(min_disp), resolve_max_disp(max_disp, left_image.shape[1])
+    searched, estimate = resolve_range(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
+    print_note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    return searched.minimum, searched.maximum
+
+
+def parse_vis_range(vis_range: str | None, vis: object) -> tuple[float, float] | None:
+    """--vis-range MIN:MAX as (min, max) px (:func:`cade_cli.io.pictures.parse_value_range`),
+    refused without --vis (``vis``: its value, None or False when not given)."""
+    from cade_cli.errors import CadeError
+    from cade_cli.io.pictures import parse_value_range
+
+    if vis_range is None:
+        return None
+    if vis is None or vis is False:
+        raise CadeError("--vis-range sets the colours of the --vis picture; add --vis PICTURE.png or drop --vis-range")
+    return parse_value_range(vis_range, option="--vis-range")
+
+
+def parse_memory_limit(memory_limit: str | None) -> int:
+    """--memory-limit in bytes (:func:`cade_cli.scale.tiling.parse_memory`); None: the default budget."""
+    from cade_cli.scale.tiling import default_memory_limit, parse_memory
+
+    return default_memory_limit() if memory_limit is None else parse_memory(memory_limit)
+
+
+def check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:
+    """Refuse, before any work, outputs we could not write or must not overwrite."""
+    from cade_cli.io.atomic import check_writable
+    from cade_cli.errors import CadeError
+
+    if path.suffix.lower() not in suffixes:
+        raise CadeError(f"cannot write {path}: unsupported extension {path.suffix or '(none)'}; use one of {', '.join(suffixes)}")
+    check_writable(path)  # the folder exists, is one, and takes new files; path is not a folder
+    for source in inputs:
+        if source.exists() and path.exists() and path.resolve() == source.resolve():
+            raise CadeError(f"output {path} is also an input; choose another output name")
+
+
+def print_note(message: str) -> None:
+    print(f"note: {message}", file=sys.stderr)
+
+
+def print_warning(message: str) -> None:
+    print(f"warning: {message}", file=sys.stderr)

@@ -1,0 +1,305 @@
+"""Commands on one pair of bands: ``cade disparity`` (with or without a rig) and ``cade register``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cade_cli.cli.options import DEFAULT_METHOD, MaxDispAutoOption, MaxDispOption, MemoryLimitOption, MethodOption, MinDispAutoOption, MinDispOption, ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning, read_pair, report_misalignment, resolve_max_disp, resolve_range_options, warn_if_textureless
+
+
+def disparity(
+    left: Annotated[Path, typer.Argument(help="Reference (left) image.", show_default=False)],
+    right: Annotated[Path, typer.Argument(help="Other (right) image, possibly another band.", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Disparity file: .pfm, .tif, .png (KITTI uint16) or .npy.")],
+    method: MethodOption = DEFAULT_METHOD,
+    max_disp: MaxDispAutoOption = None,
+    min_disp: MinDispAutoOption = "0",
+    preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
+    memory_limit: MemoryLimitOption = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a colourised PNG with a colour bar in px "
+                                                "(invalid = black).")] = None,
+    vis_range: VisRangeOption = None,
+    left_band: Annotated[Optional[int], band_option("left")] = None,
+    right_band: Annotated[Optional[int], band_option("right")] = None,
+    fill: Annotated[
+        str, typer.Option("--fill", help="Pixels the matcher rejected: 'row' (filled from the background side "
+                          "along the row; dense output) or 'none' (written as the format's invalid marker).")
+    ] = "row",
+    validity: Annotated[
+        Optional[Path], typer.Option("--validity", help="Also write the validity mask: PNG (255 = valid, 0 = rejected) "
+                                     "or TIFF (uint8 1/0).")
+    ] = None,
+    confidence: Annotated[
+        Optional[Path], typer.Option("--confidence", help="Also write the matcher's confidence: float32 TIFF in [0, 1], "
+                                     "higher = more trusted, 0 = rejected; keep pixels above a threshold to mask what "
+                                     "the matcher is unsure of (README: what each method measures).")
+    ] = None,
+    rig_file: Annotated[
+        Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): LEFT is its reference camera's "
+                                     "image, RIGHT another camera's; the pair is rectified first (docs/rigs.md).")
+    ] = None,
+    camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took RIGHT (default: "
+                                                  "the rig's rectified pair, else the first other camera).")] = None,
+    frame: Annotated[
+        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
+                          "the 'original' one (disparity stays in rectified px).")
+    ] = "rectified",
+    depth: Annotated[Optional[Path], typer.Option("--depth", help="With --rig: also write depth, float32 TIFF, "
+                                                  "metres, NaN unknown.")] = None,
+    points: Annotated[Optional[Path], typer.Option("--points", help="With --rig: also write a point cloud (binary "
+                                                   "PLY, metres, reference camera frame, grey from LEFT).")] = None,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
+                                               "roll the rectification self-check measures before matching.")] = False,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
+                                         "or outside the range searched (exit 1, nothing written) instead of "
+                                         "warning.")] = False,
+) -> None:
+    """Disparity of LEFT against RIGHT, written to OUTPUT."""
+    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, write_match_outputs
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import densify, get_matcher
+    from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles
+
+    if fill not in ("row", "none"):
+        raise CadeError(f"unknown --fill {fill!r}; choose row or none")
+    min_disp, max_disp = parse_range_options(min_disp, max_disp)
+    colour_range = parse_vis_range(vis_range, vis)
+    budget = parse_memory_limit(memory_limit)
+    check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
+    if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
+        raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
+                        f"name it .tif or .tiff")
+    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES),
+                                          ("--confidence", confidence, (".tif", ".tiff"))):
+        if side_output is not None:
+            check_output(side_output, suffixes=suffixes, inputs=(left, right))
+            if side_output.resolve() == output.resolve():
+                raise CadeError(f"{option} {side_output} is the same file as --output; give it another name")
+    if vis is not None and validity is not None and vis.resolve() == validity.resolve():
+        raise CadeError(f"--vis and --validity both name {vis}; give them different names")
+    if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
+        raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
+    rig_only = [option for option, given in (("--camera", camera is not None), ("--frame", frame != "rectified"),
+                ("--depth", depth is not None), ("--points", points is not None), ("--fix-vertical", fix_vertical))
+                if given]
+    if rig_file is not None:
+        _disparity_with_rig(
+            rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
+            fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+            model=model, memory_limit=budget, vis=vis, left_band=left_band, right_band=right_band, fill=fill,
+            validity=validity, confidence=confidence, vis_range=colour_range, strict=strict)
+        return
+    if rig_only:
+        raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
+                        f"RIG.json or drop {rig_only[0]}")
+    left_image, right_image = read_pair(left, right, left_band, right_band)
+    started = time.perf_counter()
+    min_disp, max_disp = resolve_range_options(min_disp, max_disp, left_image, right_image)
+    pair_check = _check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
+    plan = plan_tiles(left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
+                      memory_limit=budget, model=model)
+    if plan.tiled:
+        print_note(plan.describe())
+    result, _ = estimate_disparity_tiled(
+        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+        model=model, memory_limit=budget, plan=plan,
+    )
+    seconds = time.perf_counter() - started
+    preprocess = get_matcher(method).resolve_preprocess(preprocess)
+    dense = densify(result.disparity, result.valid)
+    warn_if_textureless(left, right, left_image, right_image)
+    if confidence is not None and result.confidence is None:
+        raise CadeError(f"method {method} gives no confidence; drop --confidence")
+    with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
+        roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
+        write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
+                            disparity=result.disparity, valid=result.valid, confidence=result.confidence, fill=fill,
+                            vis_range=colour_range)
+    height, width = dense.shape
+    print(
+        f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
+        f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
+        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
+    )
+
+
+def _check_pair(left_image, right_image, *, min_disp: int, max_disp: int, strict: bool):
+    """Run the pair check (:func:`cade_cli.pair_check.check_pair`) before matching: a
+    problem found is a warning, or with ``strict`` an error; returns the check (None for
+    a pair the matcher refuses anyway, with its own message: sizes that differ, an
+    impossible range)."""
+    from cade_cli.errors import CadeError
+    from cade_cli.pair_check import check_pair
+
+    if left_image.shape != right_image.shape or max_disp < min_disp:
+        return None
+    found = check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
+    if found.problems and strict:
+        raise CadeError(f"{found.describe()} (--strict)")
+    if found.problems:
+        print_warning(found.describe())
+    return found
+
+
+def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path, camera, frame, depth, points,
+                        fix_vertical, method, max_disp, min_disp, preprocess, model, memory_limit, vis, left_band,
+                        right_band, fill, validity, confidence, vis_range=None, strict=False) -> None:
+    """`cade disparity --rig`: rectify LEFT/RIGHT through the rig, check, match (the range
+    resolved on the rectified pair, whole or as tiles within ``memory_limit``, bytes), write
+    in the chosen frame."""
+    import numpy as np
+
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import get_matcher
+    from cade_cli.scale.range import AUTO
+    from cade_cli.rigs.rectification import FRAMES, VERTICAL_TOLERANCE_PX
+    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
+
+    if frame not in FRAMES:
+        raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
+    inputs = (left, right, rig_file)
+    for option, path, suffixes in (("--depth", depth, (".tif", ".tiff")), ("--points", points, (".ply",))):
+        if path is not None:
+            check_output(path, suffixes=suffixes, inputs=inputs)
+    get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before any work
+    rig = load_rig(rig_file)
+    other, rectification = rig_pair_rectification(rig, camera)
+    left_image, right_image = read_pair(left, right, left_band, right_band)
+    check_rig_pair(rig, rectification, left_image, right_image, paths=(left, right))
+    started = time.perf_counter()
+    width = rectification.image_size[0]
+    if AUTO not in (min_disp, max_disp):
+        max_disp = resolve_max_disp(max_disp, width)
+    found, framed = match_rig_pair(rig, left_image, right_image, other=other, frame=frame, fill=fill,
+                                   fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp,
+                                   preprocess=preprocess, model=model, memory_limit=memory_limit)
+    seconds = time.perf_counter() - started
+    if found.range_estimate is not None:
+        print_note(found.range_estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    if found.plan.tiled:
+        print_note(found.plan.describe())
+    if found.misalignment is not None:
+        if strict and not fix_vertical and found.misalignment.worst(width) > VERTICAL_TOLERANCE_PX:
+            raise CadeError(f"rectification self-check: vertical misalignment up to "
+                            f"{found.misalignment.worst(width):.2f} px, above {VERTICAL_TOLERANCE_PX} px; add "
+                            "--fix-vertical or recalibrate (--strict)")
+        report_misalignment(found.misalignment, width, fixed=fix_vertical, corrected=found.corrected)
+    else:
+        print_warning(f"rectification self-check skipped: {found.self_check_problem}")
+    warn_if_textureless(left, right, found.left, found.right)
+    files = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence, "depth": depth,
+             "points": points}
+    with atomic_outputs(list(files.values())) as staged:  # all outputs appear together, or none
+        written = write_rig_outputs({role: None if path is None else staged[path] for role, path in files.items()},
+                                    framed, fill=fill, method=method, vis_range=vis_range)
+    height, width = framed.dense.shape
+    known = framed.dense[framed.valid] if framed.valid.any() else framed.dense[:1] * 0
+    print(f"{output}: {width}x{height} ({frame} frame of {rectification.cameras[0]}; rectified "
+          f"{rectification.cameras[0]}-{rectification.cameras[1]}, focal {rectification.focal:.1f} px, baseline "
+          f"{rectification.baseline:.4g} m), {method}+{get_matcher(method).resolve_preprocess(preprocess)}, searched "
+          f"[{found.range.minimum}, {found.range.maximum}], "
+          f"disparity {float(np.nanmin(known)):.2f}..{float(np.nanmax(known)):.2f} px, "
+          f"valid {100.0 * framed.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
+          + (f"; {written} points in {points}" if points is not None else ""))
+
+
+def register(
+    context: typer.Context,
+    moving: Annotated[Path, typer.Argument(help="Band to warp (right view).", show_default=False)],
+    reference: Annotated[Path, typer.Argument(help="Reference band (left view).", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Float32 TIFF: reference, registered, validity bands.")],
+    disparity_file: Annotated[
+        Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it "
+                                     "(its invalid markers -- inf, NaN, 0 in PNG -- are not trusted).")
+    ] = None,
+    validity_file: Annotated[
+        Optional[Path], typer.Option("--validity", help="With --disparity: the validity mask `cade disparity "
+                                     "--validity` wrote; only its valid pixels are trusted.")
+    ] = None,
+    method: MethodOption = DEFAULT_METHOD,
+    max_disp: MaxDispOption = None,
+    min_disp: MinDispOption = 0,
+    preprocess: PreprocessOption = "auto",
+    model: ModelOption = None,
+    fill: Annotated[
+        str, typer.Option("--fill", help="Occluded pixels: 'row' (background along the row) or 'none' (NaN).")
+    ] = "row",
+    moving_band: Annotated[Optional[int], typer.Option("--moving-band", min=0, help="0-based band of the moving file.")] = None,
+    reference_band: Annotated[
+        Optional[int], typer.Option("--reference-band", min=0, help="0-based band of the reference file.")
+    ] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a PNG to judge the registration by: the "
+                                                "reference in magenta, the registered band in green (aligned = grey), "
+                                                "no valid registration tinted blue.")] = None,
+    vis_mode: Annotated[str, typer.Option("--vis-mode", help="With --vis: 'overlay' (magenta / green) or 'checker' "
+                                          "(a checkerboard of the two bands' tiles).")] = "overlay",
+) -> None:
+    """Warp MOVING into the view of REFERENCE and write both as one multi-band TIFF."""
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.disparity import read_disparity
+    from cade_cli.registration import register as register_band
+    from cade_cli.io.registered import REGISTRATION_VIS_MODES, write_registration, write_registration_picture
+
+    from cade_cli.errors import CadeError
+
+    inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
+    check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
+    if vis is not None:
+        check_output(vis, suffixes=(".png",), inputs=inputs)
+    if vis_mode not in REGISTRATION_VIS_MODES:
+        raise CadeError(f"unknown --vis-mode {vis_mode!r}; choose {' or '.join(REGISTRATION_VIS_MODES)}")
+    if vis is None and context.get_parameter_source("vis_mode").name != "DEFAULT":
+        raise CadeError("--vis-mode says how --vis draws the registration; add --vis PICTURE.png or drop --vis-mode")
+    if validity_file is not None and disparity_file is None:
+        raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
+    if fill not in ("row", "none"):
+        raise CadeError(f"unknown --fill {fill!r}; choose row or none")
+    if disparity_file is not None:
+        estimation = [f"--{name.replace('_', '-')}" for name in ("method", "max_disp", "min_disp", "preprocess", "model")
+                      if context.get_parameter_source(name).name != "DEFAULT"]
+        if estimation:
+            named = " and ".join([", ".join(estimation[:-1]), estimation[-1]] if len(estimation) > 1 else estimation)
+            verb, pronoun = ("apply", "them") if len(estimation) > 1 else ("applies", "it")
+            raise CadeError(f"{named} only {verb} when the disparity is estimated, but --disparity gives it; drop "
+                            f"{pronoun} or --disparity")
+    else:
+        from cade_cli.matching import get_matcher
+
+        get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
+    reference_image, moving_image = read_pair(
+        reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
+    )
+    started = time.perf_counter()
+    if disparity_file is not None:
+        from cade_cli.io.disparity import read_validity
+
+        trusted = read_validity(validity_file) if validity_file is not None else None
+        result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file),
+                               disparity_valid=trusted, fill=fill, disparity_name=str(disparity_file))
+        source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
+    else:
+        max_disp = resolve_max_disp(max_disp, reference_image.shape[1])
+        result = register_band(
+            moving_image, reference_image, method=method, max_disp=max_disp, min_disp=min_disp,
+            preprocess=preprocess, fill=fill, model=model,
+        )
+        from cade_cli.matching import get_matcher
+
+        source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"
+        warn_if_textureless(reference, moving, reference_image, moving_image)
+    seconds = time.perf_counter() - started
+    with atomic_outputs([output, vis]) as staged:  # all outputs appear together, or none
+        write_registration(staged[output], result)
+        if vis is not None:
+            write_registration_picture(staged[vis], result, mode=vis_mode)
+    height, width = result.reference.shape
+    print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")
