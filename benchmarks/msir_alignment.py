@@ -28,7 +28,8 @@ import numpy as np
 from cade_cli.rigs.array import false_colour, plane_mapping_from_points, read_array_cube, score_cubes
 from cade_cli.io.atomic import atomic_outputs
 from cade_cli.errors import CadeError
-from cade_cli.rigs.rig import Camera, PlaneMapping, Rig, save_rig
+from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
+from cade_cli.rigs.rig_file import save_rig
 
 REFERENCE = 4
 PICTURE_WIDTH = 512

@@ -26,7 +26,7 @@ from cade_cli.rigs.array import (
     write_array_cube,
 )
 from cade_cli.errors import CadeError
-from cade_cli.rigs.rig import rig_from_dict
+from cade_cli.rigs.rig_file import rig_from_dict
 from synthetic import smooth_texture
 
 SHAPE = (120, 160)
@@ -432,7 +432,7 @@ def test_msir_rig_and_parallax_beat_the_affine_alone(shared_data, tmp_path, caps
     import sys
     from pathlib import Path
 
-    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.rig_file import load_rig
 
     folder = shared_data / "msir-outdoor"
     if not folder.is_dir():

@@ -354,7 +354,7 @@ def rig_cameras(tmp_path, rng) -> Path:
     views of a textured plane, at 1.2 and 1.5 m."""
     import cv2
 
-    from cade_cli.rigs.rig import save_rig
+    from cade_cli.rigs.rig_file import save_rig
     from test_rig import scene_pair, synthetic_rig
 
     save_rig(synthetic_rig(), tmp_path / "rig.json")
@@ -367,7 +367,8 @@ def rig_cameras(tmp_path, rng) -> Path:
 
 
 def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras, capsys):
-    from cade_cli.rigs.rig import Rig, load_rig, save_rig
+    from cade_cli.rigs.rig import Rig
+    from cade_cli.rigs.rig_file import load_rig, save_rig
 
     root = rig_cameras
     rig_options = ["--rig", root / "rig.json", "--frame", "original", "-m", "sgbm", "--max-disp", 48]
@@ -459,7 +460,7 @@ RIG_BATCH_ERRORS = {
 
 @pytest.mark.parametrize("case", RIG_BATCH_ERRORS)
 def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, monkeypatch, case):
-    from cade_cli.rigs.rig import save_rig
+    from cade_cli.rigs.rig_file import save_rig
     from test_rig import synthetic_rig
 
     save_rig(synthetic_rig(), cameras / "rig.json")

@@ -18,7 +18,8 @@ from cade_cli.errors import CadeError
 from cade_cli.rigs.rectification import (
     correct_vertical_misalignment, measure_vertical_misalignment, rectify_pair, stereo_rectification,
 )
-from cade_cli.rigs.rig import RIG_VERSION, Camera, Rig, load_rig, rig_from_dict, rig_to_dict, save_rig
+from cade_cli.rigs.rig import Camera, Rig
+from cade_cli.rigs.rig_file import RIG_VERSION, load_rig, rig_from_dict, rig_to_dict, save_rig
 from synthetic import smooth_texture
 from cli_runner import run_cade
 

@@ -43,7 +43,7 @@ def calibrate(
     from cade_cli.rigs.calibration import CameraImages, calibrate_rig, draw_detection, parse_board
     from cade_cli.errors import CadeError
     from cade_cli.io.images import SUPPORTED_IMAGE_SUFFIXES, read_band
-    from cade_cli.rigs.rig import save_rig
+    from cade_cli.rigs.rig_file import save_rig
 
     check_output(output, suffixes=(".json",), inputs=())
     chosen = parse_board(board, square=square, marker=marker, dictionary=dictionary)
@@ -109,7 +109,7 @@ def rectify(
         rectify_pair, write_rectified_image,
     )
     from cade_cli.errors import CadeError
-    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.rig_file import load_rig
 
     for path in output:
         check_output(path, suffixes=RECTIFIED_IMAGE_SUFFIXES, inputs=(left, right, rig_file))
@@ -186,7 +186,7 @@ def register_array(
     from cade_cli.errors import CadeError
     from cade_cli.io.images import read_band
     from cade_cli.matching import get_matcher
-    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.rig_file import load_rig
 
     check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))
     if disparity_file is not None:

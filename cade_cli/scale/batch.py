@@ -148,7 +148,7 @@ class PairOptions:
                                 f"RIG.json or drop {option}")
             return
         from cade_cli.rigs.rectification import FRAMES
-        from cade_cli.rigs.rig import load_rig
+        from cade_cli.rigs.rig_file import load_rig
         from cade_cli.rigs.pair import rig_pair_rectification
 
         if self.frame not in FRAMES:
@@ -588,7 +588,7 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
     an ``auto`` bound estimated on the rectified pair, matched whole or as tiles within the
     memory limit); a rectification self-check above tolerance, or skipped, is a note."""
     from cade_cli.rigs.rectification import VERTICAL_TOLERANCE_PX
-    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
 
     options = pair.options
@@ -659,7 +659,7 @@ def planned_pair_memory(pair: Pair) -> tuple[int, int, int]:
 
 @functools.lru_cache(maxsize=4)
 def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
-    from cade_cli.rigs.rig import load_rig
+    from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import rig_pair_rectification
 
     return tuple(rig_pair_rectification(load_rig(rig), camera)[1].image_size)
