@@ -42,7 +42,8 @@ def calibrate(
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.rigs.calibration import CameraImages, calibrate_rig, draw_detection, parse_board
     from cade_cli.errors import CadeError
-    from cade_cli.io.images import SUPPORTED_IMAGE_SUFFIXES, read_band
+    from cade_cli.io.images import read_band
+    from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
     from cade_cli.rigs.rig_file import save_rig
 
     check_output(output, suffixes=(".json",), inputs=())

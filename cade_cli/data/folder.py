@@ -9,7 +9,7 @@ from pathlib import Path
 from cade_cli.data.dataset import Dataset, Scene, make_scene
 from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity
 from cade_cli.errors import CadeError
-from cade_cli.io.images import SUPPORTED_IMAGE_SUFFIXES
+from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
 
 
 def _files_by_stem(folder: Path, suffixes: tuple[str, ...]) -> dict[str, Path]:

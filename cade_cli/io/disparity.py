@@ -23,14 +23,9 @@ import tifffile
 
 from cade_cli.io.atomic import atomic_output
 from cade_cli.errors import CadeError
-from cade_cli.io.images import (
-    MAX_IMAGE_SAMPLES,
-    check_image_size,
-    check_input_file,
-    decode_with_cv2,
-    one_line_message,
-    read_bytes,
-    read_tiff_array,
+from cade_cli.io.images import read_tiff_array
+from cade_cli.io.image_files import (
+    MAX_IMAGE_SAMPLES, check_image_size, check_input_file, decode_with_cv2, one_line_message, read_bytes,
 )
 from cade_cli.io.pictures import (
     INVALID_COLOUR, ROBUST_PERCENTILES, ColourBar, Swatch, colour_map, format_value, robust_range, scaled_picture,

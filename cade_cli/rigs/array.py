@@ -43,7 +43,8 @@ import tifffile
 
 from cade_cli.io.atomic import atomic_output
 from cade_cli.errors import CadeError
-from cade_cli.io.images import check_input_file, read_tiff_array
+from cade_cli.io.images import read_tiff_array
+from cade_cli.io.image_files import check_input_file
 from cade_cli.matching.disparity import densify, visible_in_right_view
 from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, estimate_disparity

@@ -60,7 +60,7 @@ from cade_cli.io.checksum import file_sha256
 from cade_cli.io.disparity import DISPARITY_SUFFIXES
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
-from cade_cli.io.images import SUPPORTED_IMAGE_SUFFIXES
+from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
 from cade_cli.scale.range import AUTO, RangeEstimate, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
 from cade_cli.scale.tiling import BASE_BYTES, available_memory_bytes, default_memory_limit, matching_memory_bytes
@@ -684,7 +684,8 @@ def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) 
 
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file, from its header where it tells, else by decoding it."""
-    from cade_cli.io.images import header_size, load_image
+    from cade_cli.io.images import load_image
+    from cade_cli.io.image_files import header_size
 
     with open(path, "rb") as stream:
         size = header_size(stream.read(1 << 16))
