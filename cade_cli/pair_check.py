@@ -7,9 +7,11 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
 
 1. both bands are downscaled by :func:`check_factor` (area averaging, width kept at least
    :data:`CHECK_WIDTH` px) and matched sparsely with ORB features on their gradient images
-   (:func:`cade_cli.rigs.rectification.sparse_matches`: the detector the rig self-check uses,
-   made cheap; bands from different filters match, contrast inversions included), and
-   the row of each match refined to a fraction of a pixel (:func:`subpixel_row_shift`);
+   (:func:`cade_cli.rigs.rectification.gradient_matches`: the detector the rig self-check uses,
+   made cheap; bands from different filters match, contrast inversions included; only
+   features within :func:`max_horizontal` columns and :data:`MAX_VERTICAL_SHARE` rows of
+   each other compete), and the row of each match refined to a fraction of a pixel
+   (:func:`subpixel_row_shift`, on the same gradient images);
 2. the row difference of the matches is fitted as a vertical offset plus a rotation about
    the image centre: the line (offset, rotation) that most matches lie on is found by a
    vote over rotations of up to :data:`MAX_ROTATION_DEG` (:func:`dominant_line`: cross-band
@@ -21,9 +23,11 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
    with a non-negative range means LEFT and RIGHT are swapped; mostly outside the range
    searched means the range misses the scene, and a range that holds them is suggested.
 
-The check only reads the pair: it never changes a disparity. It costs a few percent of
-the fastest matcher's time (``benchmarks/pair_check.py``, docs/pair-check.md, which also
-counts its false alarms on the rectified benchmark sets). A pair with too little texture
+The check only reads the pair: it never changes a disparity. Its cost is nearly fixed
+(about 10 ms on one thread): under 10 % of the fastest matcher's time on Q-size Middlebury
+pairs from about 700 x 480 px, but up to about 40 % on a small one such as ArtL, 347 x 277
+(``benchmarks/pair_check.py``, docs/pair-check.md, which also counts its false alarms on
+every rectified Middlebury, KITTI and FlyingThings3D pair of the data folder). A pair with too little texture
 shared by the bands gives too few matches to judge: the check is then inconclusive and
 finds no problem.
 """
@@ -38,12 +42,16 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.scale.range import range_margin
-from cade_cli.rigs.rectification import fit_vertical_misalignment, gradient_image, sparse_matches
+from cade_cli.rigs.rectification import fit_vertical_misalignment, gradient_image, gradient_matches
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""
 FEATURES = 600
 """The most ORB features detected per band."""
+FAST_THRESHOLD = 5
+"""FAST threshold of the ORB detector (grey levels of the gradient images)."""
+PATCH_SIZE = 31
+"""ORB patch size (px of the downscaled band)."""
 MAX_VERTICAL_SHARE = 0.05
 """Matches whose rows differ by more than this share of the width (at least
 :data:`MIN_MAX_VERTICAL_PX`) are not considered: room for a 2 degree rotation plus an offset."""
@@ -158,6 +166,18 @@ class PairCheck:
                 "problems": list(self.problems)}
 
 
+MAX_HORIZONTAL_SHARE = 0.3
+"""Features whose columns differ by more than this share of the width (or than the range
+searched, widened by a quarter) are not matched: a scene's disparities stay well within it."""
+
+
+def max_horizontal(width: int, min_disp: int, max_disp: int) -> float:
+    """The largest |x_left - x_right| (px) a match may have: :data:`MAX_HORIZONTAL_SHARE` of
+    ``width``, or the range searched widened by a quarter when that reaches further."""
+    reach = max(abs(min_disp), abs(max_disp))
+    return max(MAX_HORIZONTAL_SHARE * width, 1.25 * reach)
+
+
 def check_factor(width: int, *, check_width: int = CHECK_WIDTH) -> int:
     """The largest power of two that keeps ``width`` (px) divided by it at least ``check_width``."""
     factor = 1
@@ -189,13 +209,16 @@ def check_pair(left: np.ndarray, right: np.ndarray, *, min_disp: int = 0, max_di
     if factor > 1:
         size = (max(8, round(width / factor)), max(8, round(height / factor)))
         left, right = (cv2.resize(band, size, interpolation=cv2.INTER_AREA) for band in (left, right))
-    scale = width / left.shape[1]
+    scale_x, scale_y = width / left.shape[1], height / left.shape[0]
     max_vertical = max(MAX_VERTICAL_SHARE * width, MIN_MAX_VERTICAL_PX)
-    points_left, points_right = sparse_matches(left, right, detector="orb", features=FEATURES,
-                                               max_vertical=max_vertical / scale)
-    row_shift = subpixel_row_shift(gradient_image(left), gradient_image(right), points_left, points_right)
-    points_left, points_right = points_left * scale, points_right * scale
-    dy = points_right[:, 1] + row_shift * scale - points_left[:, 1]
+    gradient_left, gradient_right = gradient_image(left), gradient_image(right)
+    points_left, points_right = gradient_matches(gradient_left, gradient_right, detector="orb", features=FEATURES,
+                                                 max_vertical=max_vertical / scale_y,
+                                                 max_horizontal=max_horizontal(width, min_disp, max_disp) / scale_x,
+                                                 fast_threshold=FAST_THRESHOLD, patch_size=PATCH_SIZE)
+    row_shift = subpixel_row_shift(gradient_left, gradient_right, points_left, points_right)
+    points_left, points_right = points_left * (scale_x, scale_y), points_right * (scale_x, scale_y)
+    dy = points_right[:, 1] + row_shift * scale_y - points_left[:, 1]
     disparities = points_left[:, 0] - points_right[:, 0]
     searched = (int(min_disp), int(max_disp))
     near = dominant_line(points_left[:, 0], dy, width=width, band=LINE_BAND_PX)
@@ -207,7 +230,7 @@ def check_pair(left: np.ndarray, right: np.ndarray, *, min_disp: int = 0, max_di
     except CadeError:  # too few matches: nothing to judge
         return PairCheck(int(near.sum()), None, None, None, None, 0.0, 0.0, searched, None, factor, ())
     trusted = disparities[near][inliers]
-    tolerance = DISPARITY_TOLERANCE_PX * scale
+    tolerance = DISPARITY_TOLERANCE_PX * scale_x
     negative_share = float(np.mean(trusted < -tolerance))
     outside_share = float(np.mean((trusted < min_disp - tolerance) | (trusted > max_disp + tolerance)))
     low, high = (float(v) for v in np.percentile(trusted, RANGE_PERCENTILES))
@@ -247,19 +270,20 @@ def dominant_line(x: np.ndarray, dy: np.ndarray, *, width: int, band: float = 1.
     x, dy = np.asarray(x, np.float64), np.asarray(dy, np.float64)
     if not len(dy):
         return np.zeros(0, bool)
-    centre = (width - 1) / 2
-    best_count, best_residual = -1, dy
     angles = np.arange(-MAX_ROTATION_DEG, MAX_ROTATION_DEG + 1e-9, ROTATION_STEP_DEG)
-    for angle in sorted(angles, key=abs):  # ties go to the smaller rotation
-        residual = dy - math.tan(math.radians(angle)) * (x - centre)
-        bins = np.floor(residual).astype(np.int64)
-        values, counts = np.unique(bins, return_counts=True)
-        lookup = dict(zip(values.tolist(), counts.tolist()))
-        windows = [lookup.get(v - 1, 0) + count + lookup.get(v + 1, 0) for v, count in zip(values.tolist(), counts.tolist())]
-        peak = int(np.argmax(windows))
-        if windows[peak] > best_count:
-            best_count, best_residual = windows[peak], residual - (values[peak] + 0.5)
-    return np.abs(best_residual) <= band
+    angles = angles[np.argsort(np.abs(angles), kind="stable")]  # ties go to the smaller rotation
+    residuals = dy[None, :] - np.tan(np.radians(angles))[:, None] * (x - (width - 1) / 2)[None, :]  # (A, N)
+    bins = np.floor(residuals).astype(np.int64)
+    lowest = int(bins.min()) - 1
+    span = int(bins.max()) - lowest + 2
+    counts = np.bincount((bins - lowest + span * np.arange(len(angles))[:, None]).ravel(),
+                         minlength=span * len(angles)).reshape(len(angles), span)
+    windows = counts.copy()
+    windows[:, 1:] += counts[:, :-1]
+    windows[:, :-1] += counts[:, 1:]
+    windows[counts == 0] = -1  # a window is centred on a bin that holds matches
+    best, peak = np.unravel_index(int(np.argmax(windows)), windows.shape)  # the first: smallest rotation, then offset
+    return np.abs(residuals[best] - (peak + lowest + 0.5)) <= band
 
 
 SUBPIXEL_HALF_WINDOW = 4

@@ -190,3 +190,65 @@ def test_batch_strict_fails_the_shifted_pair_only_and_records_the_offset(shifted
     assert sum("warning:" in line and "pair check" in line for line in err.splitlines()) == 1
     record = json.loads((tmp_path / "bad.pfm.cade.json").read_text())
     assert record["pair_check"]["vertical_offset_px"] == pytest.approx(6.0, abs=1.0)
+
+
+def dominant_line_reference(x, dy, *, width, band=1.0):
+    """The slow, obviously-correct :func:`~cade_cli.pair_check.dominant_line`: one rotation at a time."""
+    from cade_cli.pair_check import MAX_ROTATION_DEG, ROTATION_STEP_DEG
+
+    best_count, best_residual = -1, dy
+    angles = np.arange(-MAX_ROTATION_DEG, MAX_ROTATION_DEG + 1e-9, ROTATION_STEP_DEG)
+    for angle in sorted(angles, key=abs):
+        residual = dy - np.tan(np.radians(angle)) * (x - (width - 1) / 2)
+        values, counts = np.unique(np.floor(residual).astype(np.int64), return_counts=True)
+        lookup = dict(zip(values.tolist(), counts.tolist()))
+        windows = [lookup.get(v - 1, 0) + c + lookup.get(v + 1, 0) for v, c in zip(values.tolist(), counts.tolist())]
+        peak = int(np.argmax(windows))
+        if windows[peak] > best_count:
+            best_count, best_residual = windows[peak], residual - (values[peak] + 0.5)
+    return np.abs(best_residual) <= band
+
+
+def test_dominant_line_agrees_with_its_reference(rng):
+    from cade_cli.pair_check import dominant_line
+
+    for _ in range(200):
+        count = int(rng.integers(1, 150))
+        x, dy = rng.uniform(0, 700, count), rng.uniform(-30, 30, count)
+        on_line = int(rng.integers(0, count + 1))
+        slope = np.tan(np.radians(rng.uniform(-3, 3)))
+        dy[:on_line] = rng.normal(rng.uniform(-8, 8), 0.3, on_line) + slope * (x[:on_line] - 350)
+        if rng.random() < 0.3:
+            dy = np.round(dy)  # ties between windows
+        np.testing.assert_array_equal(dominant_line(x, dy, width=700), dominant_line_reference(x, dy, width=700))
+
+
+def test_masked_matching_agrees_with_brute_force_knn(art_pair):
+    """The banded matcher (cv2.batchDistance with a mask) keeps what a knnMatch with the same mask keeps."""
+    from cade_cli.rigs.rectification import gradient_image, gradient_matches
+
+    left, right = (gradient_image(band) for band in art_pair)
+    found_left, found_right = gradient_matches(left, right, detector="orb", features=600, max_vertical=20)
+    orb = cv2.ORB_create(nfeatures=600, nlevels=1, fastThreshold=5)
+    (key_left, desc_left), (key_right, desc_right) = (orb.detectAndCompute(image, None) for image in (left, right))
+    rows_left, rows_right = (np.float32([key.pt[1] for key in keys]) for keys in (key_left, key_right))
+    allowed = (np.abs(rows_left[:, None] - rows_right[None, :]) <= 20).astype(np.uint8)
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+    backward = {m[0].queryIdx: m[0].trainIdx
+                for m in matcher.knnMatch(desc_right, desc_left, k=1, mask=allowed.T.copy()) if m}
+    expected = {(key_left[m[0].queryIdx].pt, key_right[m[0].trainIdx].pt)
+                for m in matcher.knnMatch(desc_left, desc_right, k=2, mask=allowed)
+                if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx}
+    assert len(expected) > 50
+    assert {(tuple(a), tuple(b)) for a, b in zip(found_left, found_right)} == expected
+
+
+def test_matches_further_apart_than_max_horizontal_are_not_made(art_pair):
+    from cade_cli.rigs.rectification import gradient_image, gradient_matches
+
+    left, right = (gradient_image(band) for band in art_pair)
+    found_left, found_right = gradient_matches(left, right, detector="orb", features=600, max_vertical=20,
+                                               max_horizontal=30)
+    assert len(found_left) > 20
+    assert np.all(np.abs(found_left[:, 0] - found_right[:, 0]) <= 30 + 1e-3)
+    assert np.all(np.abs(found_left[:, 1] - found_right[:, 1]) <= 20 + 1e-3)

@@ -302,7 +302,7 @@ def sparse_matches(left: np.ndarray, right: np.ndarray, *, detector: str = "sift
 
     Features are detected on :func:`gradient_image` of each band (so a contrast inversion
     or a different response of the filters matters little) and matched mutually, with
-    Lowe's ratio test (0.8).
+    Lowe's ratio test (0.8): :func:`gradient_matches`.
 
     Args:
         left, right: (H, W) float bands, any range; sizes may differ.
@@ -316,32 +316,62 @@ def sparse_matches(left: np.ndarray, right: np.ndarray, *, detector: str = "sift
         (points_left, points_right): (N, 2) float64 (x, y) px of the N matches, in the
         pixels of each band; N may be 0.
     """
+    return gradient_matches(gradient_image(left), gradient_image(right), detector=detector, features=features,
+                            max_vertical=max_vertical)
+
+
+ORB_FAST_THRESHOLD = 5
+"""FAST threshold of the ``orb`` detector (grey levels of :func:`gradient_image`)."""
+
+
+def gradient_matches(left: np.ndarray, right: np.ndarray, *, detector: str = "sift", features: int = 4000,
+                     max_vertical: float | None = None, max_horizontal: float | None = None,
+                     fast_threshold: int = ORB_FAST_THRESHOLD, patch_size: int = 31) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sparse_matches` of two :func:`gradient_image` results (uint8, (H, W)).
+
+    ``fast_threshold`` and ``patch_size`` (px, odd) tune the ``orb`` detector: a higher
+    threshold and a smaller patch are cheaper and suit small images. With
+    ``max_vertical``, the distances are computed only between the allowed pairs
+    (``cv2.batchDistance`` with a mask), which is several times cheaper than all of them;
+    ``max_horizontal`` (px, with ``max_vertical`` only) also keeps apart the features whose
+    columns differ by more (fewer wrong candidates: more matches pass the ratio test).
+    """
     if detector == "sift":
         finder, norm = cv2.SIFT_create(nfeatures=features, contrastThreshold=0.02), cv2.NORM_L2
     elif detector == "orb":
-        finder, norm = cv2.ORB_create(nfeatures=features, nlevels=1, fastThreshold=5), cv2.NORM_HAMMING
+        finder, norm = cv2.ORB_create(nfeatures=features, nlevels=1, fastThreshold=fast_threshold,
+                                      edgeThreshold=patch_size, patchSize=patch_size), cv2.NORM_HAMMING
     else:
         raise ValueError(f"unknown detector {detector!r}; expected one of {FEATURE_DETECTORS}")
-    key_left, desc_left = finder.detectAndCompute(gradient_image(left), None)
-    key_right, desc_right = finder.detectAndCompute(gradient_image(right), None)
+    key_left, desc_left = finder.detectAndCompute(left, None)
+    key_right, desc_right = finder.detectAndCompute(right, None)
     if desc_left is None or desc_right is None or len(key_left) < 2 or len(key_right) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    matcher = cv2.BFMatcher(norm)
+    points_left, points_right = (np.float64([key.pt for key in keys]).reshape(-1, 2) for keys in (key_left, key_right))
     if max_vertical is None:
+        matcher = cv2.BFMatcher(norm)
         forward = matcher.knnMatch(desc_left, desc_right, k=2)
         backward = {m[0].queryIdx: m[0].trainIdx for m in matcher.knnMatch(desc_right, desc_left, k=1) if m}
-    else:
-        rows_left, rows_right = (np.float32([key.pt[1] for key in keys]) for keys in (key_left, key_right))
-        allowed = (np.abs(rows_left[:, None] - rows_right[None, :]) <= max_vertical).astype(np.uint8)
-        forward = matcher.knnMatch(desc_left, desc_right, k=2, mask=allowed)
-        backward = {m[0].queryIdx: m[0].trainIdx
-                    for m in matcher.knnMatch(desc_right, desc_left, k=1, mask=np.ascontiguousarray(allowed.T)) if m}
-    pairs = [(m[0].queryIdx, m[0].trainIdx) for m in forward
-             if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx]
-    if not pairs:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    return (np.float64([key_left[i].pt for i, _ in pairs]).reshape(-1, 2),
-            np.float64([key_right[j].pt for _, j in pairs]).reshape(-1, 2))
+        pairs = [(m[0].queryIdx, m[0].trainIdx) for m in forward
+                 if len(m) == 2 and m[0].distance < 0.8 * m[1].distance and backward.get(m[0].trainIdx) == m[0].queryIdx]
+        if not pairs:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        first, second = np.array(pairs).T
+        return points_left[first], points_right[second]
+    rows_left = np.empty((len(points_left), len(points_right)), np.float32)
+    rows_left[:] = points_left[:, 1:2]
+    allowed = cv2.inRange(rows_left - np.float32(points_right[:, 1]), -max_vertical, max_vertical)  # 255: a candidate
+    if max_horizontal is not None:
+        rows_left[:] = points_left[:, :1]  # now columns
+        allowed &= cv2.inRange(rows_left - np.float32(points_right[:, 0]), -max_horizontal, max_horizontal)
+    dtype = cv2.CV_32S if norm == cv2.NORM_HAMMING else cv2.CV_32F
+    distance, nearest = cv2.batchDistance(desc_left, desc_right, dtype, normType=norm, K=2, mask=allowed)
+    _, back = cv2.batchDistance(desc_right, desc_left, dtype, normType=norm, K=1, mask=np.ascontiguousarray(allowed.T))
+    best, back = nearest[:, 0], back[:, 0]
+    keep = ((nearest[:, 1] >= 0) & (best >= 0)
+            & (distance[:, 0].astype(np.float64) < 0.8 * distance[:, 1].astype(np.float64)))
+    keep[keep] = back[best[keep]] == np.flatnonzero(keep)
+    return points_left[keep], points_right[best[keep]]
 
 
 def fit_vertical_misalignment(x: np.ndarray, dy: np.ndarray, *, size: tuple[int, int], min_band: float = 0.25,
