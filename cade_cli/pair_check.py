@@ -7,7 +7,7 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
 
 1. both bands are downscaled by :func:`check_factor` (area averaging, width kept at least
    :data:`CHECK_WIDTH` px) and matched sparsely with ORB features on their gradient images
-   (:func:`cade_cli.rigs.rectification.gradient_matches`: the detector the rig self-check uses,
+   (:func:`cade_cli.matching.sparse.gradient_matches`: the detector the rig self-check uses,
    made cheap; bands from different filters match, contrast inversions included; only
    features within :func:`max_horizontal` columns and :data:`MAX_VERTICAL_SHARE` rows of
    each other compete), and the row of each match refined to a fraction of a pixel
@@ -17,7 +17,7 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
    vote over rotations of up to :data:`MAX_ROTATION_DEG` (:func:`dominant_line`: cross-band
    matches hold many wrong ones, spread over every row difference), then refined on the
    matches near it by the rig self-check's robust fit
-   (:func:`cade_cli.rigs.rectification.fit_vertical_misalignment`); the matches it keeps are
+   (:func:`cade_cli.rigs.self_check.fit_vertical_misalignment`); the matches it keeps are
    the pair's trusted matches;
 3. their horizontal offsets ``x_left - x_right`` are disparities (px): mostly negative
    with a non-negative range means LEFT and RIGHT are swapped; mostly outside the range
@@ -42,7 +42,8 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.scale.range import range_margin
-from cade_cli.rigs.rectification import fit_vertical_misalignment, gradient_image, gradient_matches
+from cade_cli.rigs.self_check import fit_vertical_misalignment
+from cade_cli.matching.sparse import gradient_image, gradient_matches
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""

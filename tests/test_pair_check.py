@@ -225,7 +225,7 @@ def test_dominant_line_agrees_with_its_reference(rng):
 
 def test_masked_matching_agrees_with_brute_force_knn(art_pair):
     """The banded matcher (cv2.batchDistance with a mask) keeps what a knnMatch with the same mask keeps."""
-    from cade_cli.rigs.rectification import gradient_image, gradient_matches
+    from cade_cli.matching.sparse import gradient_image, gradient_matches
 
     left, right = (gradient_image(band) for band in art_pair)
     found_left, found_right = gradient_matches(left, right, detector="orb", features=600, max_vertical=20)
@@ -244,7 +244,7 @@ def test_masked_matching_agrees_with_brute_force_knn(art_pair):
 
 
 def test_matches_further_apart_than_max_horizontal_are_not_made(art_pair):
-    from cade_cli.rigs.rectification import gradient_image, gradient_matches
+    from cade_cli.matching.sparse import gradient_image, gradient_matches
 
     left, right = (gradient_image(band) for band in art_pair)
     found_left, found_right = gradient_matches(left, right, detector="orb", features=600, max_vertical=20,

@@ -15,9 +15,8 @@ import tifffile
 from cade_cli.rigs.calibration import CameraImages, calibrate_rig, detect_board, pair_views, parse_board
 from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
-from cade_cli.rigs.rectification import (
-    correct_vertical_misalignment, measure_vertical_misalignment, rectify_pair, stereo_rectification,
-)
+from cade_cli.rigs.rectification import rectify_pair, stereo_rectification
+from cade_cli.rigs.self_check import correct_vertical_misalignment, measure_vertical_misalignment
 from cade_cli.rigs.rig import Camera, Rig
 from cade_cli.rigs.rig_file import RIG_VERSION, load_rig, rig_from_dict, rig_to_dict, save_rig
 from synthetic import smooth_texture

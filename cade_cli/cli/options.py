@@ -94,7 +94,7 @@ def report_misalignment(found, width: int, *, fixed: bool, corrected: bool) -> N
     """Tell the user what the rectification self-check measured (a warning above the tolerance)."""
     import math
 
-    from cade_cli.rigs.rectification import MIN_CORRECTION_PX, VERTICAL_TOLERANCE_PX
+    from cade_cli.rigs.self_check import MIN_CORRECTION_PX, VERTICAL_TOLERANCE_PX
 
     worst = found.worst(width)
     measured = (f"offset {found.offset:+.2f} px, roll {math.degrees(found.roll):+.3f} deg (up to {worst:.2f} px at "

@@ -160,7 +160,8 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
     from cade_cli.scale.range import AUTO
-    from cade_cli.rigs.rectification import FRAMES, VERTICAL_TOLERANCE_PX
+    from cade_cli.rigs.self_check import VERTICAL_TOLERANCE_PX
+    from cade_cli.rigs.outputs import FRAMES
     from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
 

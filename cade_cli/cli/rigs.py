@@ -104,11 +104,9 @@ def rectify(
 
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.images import load_image
-    from cade_cli.rigs.rectification import (
-        MIN_CORRECTION_PX, RECTIFIED_IMAGE_SUFFIXES, check_image_size, correct_vertical_misalignment,
-        epipolar_picture, luminance_of, measure_vertical_misalignment, needs_mirroring, rectification_of,
-        rectify_pair, write_rectified_image,
-    )
+    from cade_cli.rigs.rectification import check_image_size, needs_mirroring, rectification_of, rectify_pair
+    from cade_cli.rigs.self_check import MIN_CORRECTION_PX, correct_vertical_misalignment, measure_vertical_misalignment
+    from cade_cli.rigs.outputs import RECTIFIED_IMAGE_SUFFIXES, epipolar_picture, luminance_of, write_rectified_image
     from cade_cli.errors import CadeError
     from cade_cli.rigs.rig_file import load_rig
 

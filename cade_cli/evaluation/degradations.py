@@ -22,7 +22,7 @@ Each is ``degradation(band, rng) -> band`` on an (H, W) float32 band in [0, 1]; 
 ``noise-6`` draws from ``rng``.
 
 The counter-measure to the first three is :class:`VerticallyCorrected`: a matcher that runs
-the rectification self-check (:func:`cade_cli.rigs.rectification.align_vertically`) on each pair and
+the rectification self-check (:func:`cade_cli.rigs.self_check.align_vertically`) on each pair and
 matches the corrected right band, as ``cade disparity --rig --fix-vertical`` does.
 """
 
@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError, lookup
-from cade_cli.rigs.rectification import align_vertically
+from cade_cli.rigs.self_check import align_vertically
 
 Degradation = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
@@ -98,8 +98,8 @@ def degrade(band: np.ndarray, name: str, *, seed: int = 0) -> np.ndarray:
 class VerticallyCorrected:
     """``matcher`` behind the rectification self-check: each call first measures the
     vertical offset and roll between the bands and, when they reach
-    :data:`~cade_cli.rigs.rectification.MIN_CORRECTION_PX`, resamples the right band to cancel
-    them (:func:`~cade_cli.rigs.rectification.align_vertically`, disparities up to the call's
+    :data:`~cade_cli.rigs.self_check.MIN_CORRECTION_PX`, resamples the right band to cancel
+    them (:func:`~cade_cli.rigs.self_check.align_vertically`, disparities up to the call's
     ``max_disp``), then matches. A pair with too few feature matches is matched as it is. Every other attribute is the
     wrapped matcher's (its name, preprocessing, volume), so the benchmark loop treats it
     as that matcher; its time includes the self-check."""

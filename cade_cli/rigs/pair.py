@@ -6,7 +6,7 @@ refuses images of the wrong size, :func:`match_rig_pair` rectifies, self-checks 
 matches the pair (:func:`cade_cli.rigs.rectification.rig_disparity`: an ``auto`` range estimated
 on the rectified bands, the pair matched whole or as tiles within the memory limit, as
 ``cade disparity`` matches a pair without a rig) and puts the result in the frame asked
-for (:func:`cade_cli.rigs.rectification.in_frame`), and :func:`write_rig_outputs` writes the
+for (:func:`cade_cli.rigs.outputs.in_frame`), and :func:`write_rig_outputs` writes the
 outputs asked for. The commands only add their own messages around these.
 """
 
@@ -18,9 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.rigs.rectification import (
-    FramedDisparity, RigDisparity, check_image_size, in_frame, rectification_of, rig_disparity,
-)
+from cade_cli.rigs.outputs import FramedDisparity, in_frame
+from cade_cli.rigs.rectification import RigDisparity, check_image_size, rectification_of, rig_disparity
 from cade_cli.rigs.rig import Rectification, Rig
 
 RIG_OUTPUT_ROLES = ("disparity", "vis", "validity", "confidence", "depth", "points")
@@ -58,7 +57,7 @@ def match_rig_pair(
     Args:
         rig, other: the rig and the camera of ``right`` (:func:`rig_pair_rectification`).
         left, right: (H, W) float bands of the reference camera and of ``other``.
-        frame: ``rectified`` or ``original`` (:data:`cade_cli.rigs.rectification.FRAMES`).
+        frame: ``rectified`` or ``original`` (:data:`cade_cli.rigs.outputs.FRAMES`).
         fill: ``row`` (depth and points from the filled map) or ``none``.
         fix_vertical, method, min_disp, max_disp, preprocess, model, memory_limit: as for
             :func:`~cade_cli.rigs.rectification.rig_disparity`: the range in rectified px, a
@@ -93,7 +92,7 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
         CadeError: a confidence asked of a method that gives none (nothing is written).
     """
     from cade_cli.io.disparity import write_disparity, write_match_outputs
-    from cade_cli.rigs.rectification import write_ply
+    from cade_cli.rigs.outputs import write_ply
 
     unknown = set(paths) - set(RIG_OUTPUT_ROLES)
     if unknown:
