@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cade_cli.scale.batch import (
-    Pair, PairOptions, cap_jobs, is_finished, pair_memory_bytes, pairs_from_manifest, pairs_from_patterns,
-)
+from cade_cli.scale.batch import cap_jobs, pair_memory_bytes
+from cade_cli.scale.batch_pairs import Pair, PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns
 from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
 from synthetic import render_pair
@@ -474,7 +473,7 @@ def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, mon
 
 def test_stale_temporaries_of_a_pair_go_nested_ones_included_and_no_other_file(tmp_path):
     from cade_cli.io.atomic import temporary_sibling
-    from cade_cli.scale.batch import remove_stale_temporaries
+    from cade_cli.scale.batch_job import remove_stale_temporaries
 
     output = tmp_path / "0.pfm"
     outer = temporary_sibling(output)

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cade_cli.scale.batch import PairOptions
+from cade_cli.scale.batch_pairs import PairOptions
 from cade_cli.io.disparity import colorize_disparity, disparity_picture, read_disparity, write_disparity
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.loop import NO_ESTIMATE_COLOUR, NO_GT_COLOUR, error_picture, save_maps

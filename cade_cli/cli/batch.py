@@ -92,10 +92,9 @@ def batch(
     from rich.text import Text
 
     from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import (
-        BatchSummary, PairOptions, available_memory_bytes, cap_jobs, is_finished, job_memory_bytes, log_document,
-        pairs_from_manifest, pairs_from_patterns, remove_stale_temporaries, run_dask, run_local, skipped_result,
-    )
+    from cade_cli.scale.batch import BatchSummary, available_memory_bytes, cap_jobs, job_memory_bytes, log_document, run_dask, run_local
+    from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.scale.batch_pairs import PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns, skipped_result
     from cade_cli.errors import CadeError
 
     by_pattern = (left, right, output_dir)
