@@ -178,7 +178,8 @@ def register_array(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from cade_cli.rigs.array import array_cube, array_geometry, false_colour, write_array_cube
+    from cade_cli.rigs.array_geometry import array_geometry
+    from cade_cli.rigs.array_cube import array_cube, false_colour, write_array_cube
     from cade_cli.rigs.array import register_array as register_cameras
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.disparity import write_disparity
@@ -273,7 +274,8 @@ def array_score(
     from rich.console import Console
     from rich.table import Table
 
-    from cade_cli.rigs.array import read_array_cube, score_cubes
+    from cade_cli.rigs.array_cube import read_array_cube
+    from cade_cli.rigs.array_score import score_cubes
 
     loaded = [read_array_cube(path) for path in cubes]
     scores = score_cubes(loaded, window=window)
