@@ -4,7 +4,7 @@
 1. **Seams.** On Middlebury 2014 (Q) scenes, cross-spectral task ``R>B`` (red band left,
    blue band right), each method runs once untiled and once tiled with a forced small core
    (:func:`cade_cli.scale.tiling.estimate_disparity_tiled` with ``core``; each method's own
-   collar, :func:`cade_cli.scale.tiling.method_collar`), over [0, the scene's max_disp]. Over
+   collar, :func:`cade_cli.scale.windows.method_collar`), over [0, the scene's max_disp]. Over
    the pixels valid in both maps, the mean |tiled - untiled| (px) and the share of pixels
    that differ by more than 0.01 px are reported by distance to the nearest seam
    (:func:`cade_cli.scale.tiling.seam_distance`); EPE against the ground truth (densified maps,
@@ -38,8 +38,9 @@ from cade_cli.data import get_dataset
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.matching import densify
 from cade_cli.stereo import estimate_disparity
-from cade_cli.scale.tiling import (BASE_BYTES, estimate_disparity_tiled, matching_memory_bytes, method_collar, parse_memory,
-                              seam_distance)
+from cade_cli.scale.tiling import estimate_disparity_tiled, seam_distance
+from cade_cli.scale.windows import method_collar
+from cade_cli.scale.memory import BASE_BYTES, matching_memory_bytes, parse_memory
 
 METHODS = ("census-sgm", "sgbm", "cade")
 BINS = ((0, 8), (8, 32), (32, None))

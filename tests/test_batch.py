@@ -277,7 +277,7 @@ def test_two_files_of_one_name_on_a_side_are_refused(tmp_path):
 def memory_limit_that_tiles() -> str:
     """A --memory-limit a 96x192 pair over 17 disparities does not fit whole (census-sgm:
     about 10 MB beyond the process's base), matched as a handful of tiles instead."""
-    from cade_cli.scale.tiling import BASE_BYTES
+    from cade_cli.scale.memory import BASE_BYTES
 
     return f"{(BASE_BYTES + 6000 * 2**10) // 2**10}KB"
 
@@ -320,7 +320,7 @@ def test_memory_limit_tiles_each_pair_as_disparity_does_and_a_new_limit_redoes_t
 
 def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp_path):
     from cade_cli.scale.batch import job_memory_bytes
-    from cade_cli.scale.tiling import BASE_BYTES
+    from cade_cli.scale.memory import BASE_BYTES
 
     for name, shape in (("small", (16, 32)), ("large", (64, 128))):
         write_png16(tmp_path / f"{name}.png", np.zeros(shape))
@@ -408,7 +408,7 @@ def test_batch_with_a_rig_writes_what_disparity_with_the_rig_writes(rig_cameras,
 def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_it(rig_cameras, capsys):
     """--max-disp auto and a --memory-limit that tiles, with a rig: each pair's range is its
     own, announced and logged as without a rig, and the bytes are `cade disparity --rig`'s."""
-    from cade_cli.scale.tiling import BASE_BYTES
+    from cade_cli.scale.memory import BASE_BYTES
     from test_rig import plane_disparity
 
     root = rig_cameras

@@ -437,7 +437,7 @@ def test_both_bounds_auto_with_the_other_camera_left_of_the_reference(rig_scene,
 
 def test_disparity_with_a_rig_and_a_memory_limit_matches_tiles_as_the_whole_pair(rig_scene, tmp_path, capsys):
     """A --memory-limit the rectified pair does not fit: matched as tiles, which agree with the whole match."""
-    from cade_cli.scale.tiling import BASE_BYTES
+    from cade_cli.scale.memory import BASE_BYTES
 
     rig, left, right = rig_scene
     args = ["disparity", "--rig", rig, left, right, "--max-disp", 64, "-m", "sgbm", "--fill", "none", "--depth"]

@@ -184,8 +184,8 @@ def parse_vis_range(vis_range: str | None, vis: object) -> tuple[float, float] |
 
 
 def parse_memory_limit(memory_limit: str | None) -> int:
-    """--memory-limit in bytes (:func:`cade_cli.scale.tiling.parse_memory`); None: the default budget."""
-    from cade_cli.scale.tiling import default_memory_limit, parse_memory
+    """--memory-limit in bytes (:func:`cade_cli.scale.memory.parse_memory`); None: the default budget."""
+    from cade_cli.scale.memory import default_memory_limit, parse_memory
 
     return default_memory_limit() if memory_limit is None else parse_memory(memory_limit)
 

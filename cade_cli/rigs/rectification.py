@@ -25,7 +25,8 @@ from cade_cli.matching import DisparityRange, DisparityResult, densify
 from cade_cli.rigs.rig import Camera, Rectification, Rig
 from cade_cli.rigs.self_check import VerticalMisalignment, align_vertically, measure_vertical_misalignment
 from cade_cli.scale.range import RangeEstimate, resolve_range
-from cade_cli.scale.tiling import TilePlan, default_memory_limit, estimate_disparity_tiled
+from cade_cli.scale.tiling import TilePlan, estimate_disparity_tiled
+from cade_cli.scale.memory import default_memory_limit
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS
 
 
@@ -230,7 +231,7 @@ def rig_disparity(
             the rectified width. The self-check considers matches up to ``max_disp``
             (the image width while it is ``auto`` or None, since it runs first).
         memory_limit: budget for the whole process, bytes, as ``--memory-limit``; None:
-            :func:`cade_cli.scale.tiling.default_memory_limit`.
+            :func:`cade_cli.scale.memory.default_memory_limit`.
 
     Raises:
         CadeError: a bad rig or image size (:func:`rectify_pair`), too few self-check

@@ -58,14 +58,14 @@ from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
 from cade_cli.scale.batch_job import remove_stale_temporaries, run_pair
 from cade_cli.scale.batch_pairs import Pair, PairResult, worker_name
-from cade_cli.scale.tiling import BASE_BYTES, available_memory_bytes, matching_memory_bytes
+from cade_cli.scale.memory import BASE_BYTES, available_memory_bytes, matching_memory_bytes
 
 ATTEMPTS = 2
 """Runs of a pair before its failure is reported: the first and one retry."""
 
 WORKER_BASE_BYTES = BASE_BYTES
 """Resident memory of a worker before its first pair: Python, NumPy, OpenCV, onnxruntime.
-With :data:`~cade_cli.scale.tiling.PIXEL_BYTES` per pixel the plan sits just above the measured
+With :data:`~cade_cli.scale.memory.PIXEL_BYTES` per pixel the plan sits just above the measured
 peaks of ``cade``: 0.30 GiB against 0.25-0.27 GiB on 640x480 (docs/scale.md, "Throughput"),
 1.46 GB against 1.45 GB on 6 megapixels (models/README.md)."""
 MEMORY_HEADROOM = 0.8

@@ -21,7 +21,7 @@ from cade_cli.io.checksum import file_sha256
 from cade_cli.io.disparity import DISPARITY_SUFFIXES
 from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
 from cade_cli.scale.range import parse_bound
-from cade_cli.scale.tiling import default_memory_limit
+from cade_cli.scale.memory import default_memory_limit
 from cade_cli.stereo import DEFAULT_METHOD
 
 

@@ -10,23 +10,23 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    quadtree (step 4), or, when a core side is forced (``core``), a grid of square cores
    (the last row and column as large as the others, overlapping their neighbours' where
    the image does not divide evenly; there the later tile's values are kept). Each core is
-   matched inside a window: the core plus a ``collar`` on every side (:func:`method_collar`:
+   matched inside a window: the core plus a ``collar`` on every side (:func:`~cade_cli.scale.windows.method_collar`:
    wider for a learned method, whose network sees further), widened on the left by the
    tile's largest disparity (for a learned method the top level of its network's variant,
-   :func:`search_reach`) and on the right by its most negative one, so every pixel of
+   :func:`~cade_cli.scale.windows.search_reach`) and on the right by its most negative one, so every pixel of
    the core finds its match (I_left(y, x) ~ I_right(y, x - d)) inside the window. Left and
    right are cropped to the same window, so disparities are unchanged; at an image border
    the window shifts inwards and keeps its width. For a learned method the window's first
-   row and column are moved back to the network's sampling grid (:func:`window_alignment`).
+   row and column are moved back to the network's sampling grid (:func:`~cade_cli.scale.windows.window_alignment`).
 3. **The ranges.** A tile's range is :func:`cade_cli.scale.range.confident_bounds` of the coarse
    estimates over its core and collar, widened by :func:`cade_cli.scale.range.range_margin`, and
    kept within the range asked for; a tile with too few coarse estimates searches that
    whole range.
 4. **The size.** Starting from the whole image, a core whose window does not fit the
-   budget by :func:`tile_memory_bytes` (the registry's
+   budget by :func:`~cade_cli.scale.memory.tile_memory_bytes` (the registry's
    :attr:`~cade_cli.matching.Matcher.volume_bytes` per pixel and disparity, plus
-   :data:`PIXEL_BYTES` per pixel, plus a learned method's network strip; after the
-   process's base and the whole-image arrays, :data:`IMAGE_BYTES` per pixel, are set
+   :data:`~cade_cli.scale.memory.PIXEL_BYTES` per pixel, plus a learned method's network strip; after the
+   process's base and the whole-image arrays, :data:`~cade_cli.scale.memory.IMAGE_BYTES` per pixel, are set
    aside) is cut in four, down to :data:`MIN_CORE`; its quarters get their own, narrower
    seeded ranges. Tiles stay large where the depth varies little, and only the cores
    that span a wide range pay for it (until session 16 one core side was chosen for the
@@ -46,9 +46,7 @@ into, so the untiled map's rows depend on the image's height, which no window re
 
 from __future__ import annotations
 
-import functools
 import math
-import re
 from dataclasses import dataclass
 from typing import NoReturn
 
@@ -57,155 +55,15 @@ import numpy as np
 from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult, get_matcher
 from cade_cli.matching.base import check_pair
-from cade_cli.matching.learned import LearnedPipeline
-from cade_cli.matching.network import STRIP_PIXELS, choose_variant
-from cade_cli.matching.refinement import SIGN_STEP
+from cade_cli.scale.memory import BASE_BYTES, IMAGE_BYTES, tile_memory_bytes
 from cade_cli.scale.range import coarse_match, confident_bounds, range_margin
+from cade_cli.scale.windows import method_collar, search_reach, window_alignment
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, MEMORY_LIMIT_BYTES, estimate_disparity
 
-PIXEL_BYTES = 200
-"""Per pixel of a matched pair: the bands, their transforms, the map, confidence, the
-temporaries of the stages and, for the CADE network, its strips' share (docs/scale.md,
-"Jobs and memory": the plan sits just above measured peaks of ``cade``)."""
-BASE_BYTES = 250 * 2**20
-"""Resident memory of a process before its first pair: Python, NumPy, OpenCV, onnxruntime."""
-IMAGE_BYTES = 24
-"""Per pixel of the whole pair while it is tiled: both bands (float32), the stitched
-disparity, confidence and validity, and the dense copy the command writes."""
-NETWORK_LEVEL_BYTES = 6
-"""For the learned methods, bytes the network holds per pixel of a strip and level of its
-variant (about 1 GB at 128 levels and 2.3 GB at 256 on a full strip of
-:data:`~cade_cli.matching.network.STRIP_PIXELS`, :mod:`cade_cli.matching.network`)."""
-MEMORY_SHARE = 0.5
-"""Default budget: this share of the memory available (``MemAvailable``)."""
-COLLAR = 32
-"""Px added on every side of a core and dropped after matching: the context a classical
-matcher's windows, SGM paths and checks use near the core's edge."""
-LEARNED_COLLAR = 64
-"""The collar of a learned method, px: one pixel of either input moves the CADE
-network's disparity by more than 0.01 px up to about 40 rows and 50 columns away (by 1e-4
-px up to about 70; Adirondack, models/cade-v4), beyond :data:`COLLAR`."""
 MIN_CORE = 32
 """No core is cut below this side, px."""
 MIN_TILE_ESTIMATES = 16
 """A tile with fewer coarse estimates than this searches the whole range asked for."""
-
-_UNITS = {"": 1, "B": 1, "K": 2**10, "KB": 2**10, "KIB": 2**10, "M": 2**20, "MB": 2**20, "MIB": 2**20,
-          "G": 2**30, "GB": 2**30, "GIB": 2**30, "T": 2**40, "TB": 2**40, "TIB": 2**40}
-
-
-def parse_memory(text: str) -> int:
-    """A memory size as a user writes it (``4GB``, ``512MB``, ``1.5G``, ``2GiB``; 1 GB = 2**30
-    bytes) in bytes.
-
-    Raises:
-        CadeError: anything else, or a size of zero.
-    """
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*([A-Za-z]*)\s*", str(text))
-    unit = match.group(2).upper() if match else None
-    if match is None or unit not in _UNITS:
-        raise CadeError(f"--memory-limit {text!r} is not a memory size; write it like 4GB or 512MB")
-    size = int(float(match.group(1)) * _UNITS[unit])
-    if size <= 0:
-        raise CadeError(f"--memory-limit {text!r} is zero; give a positive size like 4GB")
-    return size
-
-
-def available_memory_bytes() -> int:
-    """Memory available to new processes (``MemAvailable`` of /proc/meminfo, else the
-    physical memory)."""
-    import os
-
-    try:
-        with open("/proc/meminfo") as stream:
-            for line in stream:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def default_memory_limit() -> int:
-    """The budget when none is given: :data:`MEMORY_SHARE` of the available memory, bytes."""
-    return int(MEMORY_SHARE * available_memory_bytes())
-
-
-def matching_memory_bytes(method: str, width: int, height: int, disparities: int) -> int:
-    """Planned memory (bytes) of matching one ``width`` x ``height`` pair over
-    ``disparities`` levels with ``method``, beyond the process's base: :data:`PIXEL_BYTES`
-    per pixel plus the matcher's cost volume (:attr:`~cade_cli.matching.Matcher.volume_bytes`
-    per pixel and disparity; 0 for the learned methods, whose strips bound it)."""
-    pixels = width * height
-    return int(PIXEL_BYTES * pixels + get_matcher(method).volume_bytes * pixels * disparities)
-
-
-@functools.lru_cache(maxsize=8)
-def learned_kernel(method: str, model: str | None = None) -> LearnedPipeline | None:
-    """``method``'s :class:`~cade_cli.matching.learned.LearnedPipeline` (with ``model``'s
-    network), None for a classical matcher."""
-    kernel = get_matcher(method, model=model).kernel
-    return kernel if isinstance(kernel, LearnedPipeline) else None
-
-
-def widest_network_levels(method: str, model: str | None = None) -> int:
-    """Levels of the widest variant of ``method``'s network (0 for a classical matcher)."""
-    kernel = learned_kernel(method, model)
-    return 0 if kernel is None else max(variant.levels for variant in kernel.network.card().variants)
-
-
-def method_collar(method: str, model: str | None = None) -> int:
-    """The collar ``method``'s windows get, px: :data:`LEARNED_COLLAR` for a learned
-    method, :data:`COLLAR` for the classical ones."""
-    return COLLAR if learned_kernel(method, model) is None else LEARNED_COLLAR
-
-
-def window_alignment(method: str, span: int, model: str | None = None) -> int:
-    """Px that a window's first row and column must be multiples of for ``method``, searching
-    ``span`` px (max - min), to sample the image on the grid it uses when matching the pair
-    whole; 1 for a classical matcher.
-
-    A learned method's network samples its input on a grid whose pitch is the card's
-    divisor times the pyramid factor of the search (features at 1/4 resolution, padded to
-    the divisor; a downscaled pass for wide ranges): a window starting off that grid is
-    sampled at other points, and its map differs everywhere (on Adirondack 95-97 % of the
-    pixels by more than 0.01 px for a window 1, 2 or 4 px off; 1 % for one 8 px off). Its
-    refinement reads every :data:`~cade_cli.matching.refinement.SIGN_STEP`-th row and
-    column to judge contrast inversion. Seeded tiles search at most ``span``, so their
-    pyramid factor divides this one's."""
-    kernel = learned_kernel(method, model)
-    if kernel is None:
-        return 1
-    card = kernel.network.card()
-    pitch = card.divisor * choose_variant(card, span)[1]
-    return pitch if kernel.refinement is None else math.lcm(pitch, SIGN_STEP)
-
-
-def search_reach(method: str, disparity_range: DisparityRange, model: str | None = None) -> int:
-    """The largest disparity (px) whose cost ``method`` computes when asked for
-    ``disparity_range``: its maximum for a classical matcher; for a learned one the top
-    level of the network variant it runs (the minimum plus the pyramid factor times
-    ``levels - 1``), usually above it. The network aggregates all its levels, so a window
-    must hold that many columns left of a pixel for its estimate to be the untiled one (on
-    Playtable, range [0, 72], variant of 96 levels, 128 px cores: 1.9 % of the network's
-    pixels 8-32 px from a seam move by more than 0.01 px with windows widened by 72 px,
-    0.02 % with 95 px)."""
-    kernel = learned_kernel(method, model)
-    if kernel is None:
-        return disparity_range.maximum
-    variant, factor = choose_variant(kernel.network.card(), disparity_range.span)
-    return max(disparity_range.maximum, disparity_range.minimum + factor * (variant.levels - 1))
-
-
-def tile_memory_bytes(method: str, width: int, height: int, disparities: int, *, model: str | None = None) -> int:
-    """What a ``width`` x ``height`` window (or the whole pair) is planned to take when tiling:
-    :func:`matching_memory_bytes`, plus for a learned method its network's largest strip
-    (:data:`NETWORK_LEVEL_BYTES` per pixel, up to
-    :data:`~cade_cli.matching.network.STRIP_PIXELS`, and level of the widest variant): on
-    a large window the strip, not the pixels, dominates."""
-    strip = min(width * height, STRIP_PIXELS)
-    return (matching_memory_bytes(method, width, height, disparities)
-            + NETWORK_LEVEL_BYTES * strip * widest_network_levels(method, model))
 
 
 @dataclass(frozen=True)
@@ -242,7 +100,7 @@ class TilePlan:
     collar: int
     memory_limit: int
     peak_tile_bytes: int
-    """The largest :func:`tile_memory_bytes` of a tile (of the whole pair when untiled)."""
+    """The largest :func:`~cade_cli.scale.memory.tile_memory_bytes` of a tile (of the whole pair when untiled)."""
 
     @property
     def tiled(self) -> bool:
@@ -291,9 +149,9 @@ def seeded_range(coarse, rows: tuple[int, int], columns: tuple[int, int], whole:
 def make_tile(rows: tuple[int, int], columns: tuple[int, int], shape: tuple[int, int], chosen: DisparityRange,
               seeded: bool, collar: int, alignment: int = 1, searched: int | None = None) -> Tile:
     """The tile of a core: its window (collar, plus the range on the left and right; on the
-    left up to ``searched``, :func:`search_reach`, when the matcher looks further than the
+    left up to ``searched``, :func:`~cade_cli.scale.windows.search_reach`, when the matcher looks further than the
     range's maximum; its first row and column moved back to multiples of ``alignment``,
-    :func:`window_alignment`) and the range, kept within what the window can hold."""
+    :func:`~cade_cli.scale.windows.window_alignment`) and the range, kept within what the window can hold."""
     height, width = shape
     left = max(chosen.maximum if searched is None else searched, 0)
     window_rows = (max(0, rows[0] - collar) // alignment * alignment, min(height, rows[1] + collar))
@@ -328,7 +186,7 @@ def plan_tiles(
         method: a registered matcher.
         min_disp, max_disp: the inclusive range asked for, px.
         memory_limit: budget, bytes, for the whole process.
-        collar: px of context around each core; None: :func:`method_collar`.
+        collar: px of context around each core; None: :func:`~cade_cli.scale.windows.method_collar`.
         core: force this core side (px) and tile even when the pair fits; None: the
             largest that fits the budget.
         seed: seed each tile's range from the coarse pass; False: every tile searches the
@@ -496,6 +354,4 @@ def estimate_disparity_tiled(
     return DisparityResult(disparity, valid, confidence), plan
 
 
-__all__ = ["TilePlan", "Tile", "estimate_disparity_tiled", "matching_memory_bytes", "method_collar",
-           "parse_memory", "plan_tiles", "search_reach", "tile_memory_bytes", "default_memory_limit",
-           "seam_distance", "window_alignment"]
+__all__ = ["TilePlan", "Tile", "estimate_disparity_tiled", "plan_tiles", "seam_distance"]
