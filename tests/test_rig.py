@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.rigs.calibration import CameraImages, calibrate_rig, detect_board, pair_views, parse_board
+from cade_cli.rigs.calibration import CameraImages, calibrate_rig, pair_views
+from cade_cli.rigs.boards import detect_board, parse_board
 from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
 from cade_cli.rigs.rectification import rectify_pair, stereo_rectification

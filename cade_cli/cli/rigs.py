@@ -40,7 +40,8 @@ def calibrate(
     import cv2
 
     from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.rigs.calibration import CameraImages, calibrate_rig, draw_detection, parse_board
+    from cade_cli.rigs.calibration import CameraImages, calibrate_rig
+    from cade_cli.rigs.boards import draw_detection, parse_board
     from cade_cli.errors import CadeError
     from cade_cli.io.images import read_band
     from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
