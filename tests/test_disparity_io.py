@@ -10,16 +10,8 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.io.disparity import (
-    DISPARITY_SUFFIXES,
-    colorize_disparity,
-    disparity_picture,
-    read_disparity,
-    read_pfm,
-    write_disparity,
-    write_pfm,
-    write_visualization,
-)
+from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity, read_pfm, write_disparity, write_pfm
+from cade_cli.io.match_outputs import colorize_disparity, disparity_picture, write_visualization
 from cade_cli.errors import CadeError
 from cade_cli.io.images import read_band
 

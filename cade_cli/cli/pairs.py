@@ -61,7 +61,8 @@ def disparity(
                                          "warning.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
-    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, write_match_outputs
+    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES
+    from cade_cli.io.match_outputs import write_match_outputs
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.errors import CadeError
     from cade_cli.matching import densify, get_matcher

@@ -81,7 +81,7 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
 
     ``disparity``: the map (filled unless ``fill`` is ``none``); ``vis``: the colourised
     unfilled disparity (px, with its colour bar; ``vis_range`` (min, max) px fixes its
-    colours, :func:`~cade_cli.io.disparity.disparity_picture`); ``validity``: the mask;
+    colours, :func:`~cade_cli.io.match_outputs.disparity_picture`); ``validity``: the mask;
     ``confidence``: float32 TIFF; ``depth``: float32 TIFF, metres, NaN where unknown;
     ``points``: binary PLY.
 
@@ -91,7 +91,8 @@ def write_rig_outputs(paths: Mapping[str, Path | None], framed: FramedDisparity,
     Raises:
         CadeError: a confidence asked of a method that gives none (nothing is written).
     """
-    from cade_cli.io.disparity import write_disparity, write_match_outputs
+    from cade_cli.io.disparity import write_disparity
+    from cade_cli.io.match_outputs import write_match_outputs
     from cade_cli.rigs.outputs import write_ply
 
     unknown = set(paths) - set(RIG_OUTPUT_ROLES)

@@ -105,7 +105,7 @@ class _Matched:
 def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
     """The pair as ``cade disparity`` matches it: its range resolved, matched whole or as
     tiles within the memory limit (:func:`cade_cli.scale.tiling.estimate_disparity_tiled`)."""
-    from cade_cli.io.disparity import write_match_outputs
+    from cade_cli.io.match_outputs import write_match_outputs
     from cade_cli.matching import densify
     from cade_cli.pair_check import check_pair
     from cade_cli.scale.range import resolve_range
