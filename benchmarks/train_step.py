@@ -22,7 +22,10 @@ from cade_cli.train.networks import network_of
 
 DESIGNS = {
     "cadenet (cade-v6/v7: 3D, 128 levels)": {"architecture": "cadenet", "levels": 128},
+    "cadenet (3D, 192 levels: the campaign's control)": {"architecture": "cadenet", "levels": 192},
     "cadenet2d (192 levels)": {"architecture": "cadenet2d", "levels": 192},
+    "cadenet2d + per-disparity aggregation (the campaign)": {"architecture": "cadenet2d", "levels": 192,
+                                                              "slice_channels": 4},
 }
 
 

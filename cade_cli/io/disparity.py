@@ -1,4 +1,5 @@
-"""Read and write disparity maps, and colour them for viewing.
+"""Read and write disparity maps and validity masks (their pictures, and the writer of a
+match's files: :mod:`cade_cli.io.match_outputs`).
 
 In memory a disparity map is an (H, W) float32 array in pixels of its image, with NaN
 marking invalid pixels. On disk each format uses its own marker (STYLE.md habit 7):
