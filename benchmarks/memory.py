@@ -22,8 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cade_cli.io.disparity import read_disparity
 from cade_cli.evaluation.metrics import end_point_error
+from cade_cli.io.disparity import read_disparity
 
 
 def main(argv: list[str] | None = None) -> int:

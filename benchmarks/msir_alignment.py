@@ -25,11 +25,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cade_cli.rigs.array_geometry import plane_mapping_from_points
-from cade_cli.rigs.array_cube import false_colour, read_array_cube
-from cade_cli.rigs.array_score import score_cubes
-from cade_cli.io.atomic import atomic_outputs
 from cade_cli.errors import CadeError
+from cade_cli.io.atomic import atomic_outputs
+from cade_cli.rigs.array_cube import false_colour, read_array_cube
+from cade_cli.rigs.array_geometry import plane_mapping_from_points
+from cade_cli.rigs.array_score import score_cubes
 from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
 from cade_cli.rigs.rig_file import save_rig
 

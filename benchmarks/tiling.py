@@ -37,10 +37,10 @@ from cade_cli.allocator import retain_freed_memory
 from cade_cli.data import get_dataset
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.matching import densify
-from cade_cli.stereo import estimate_disparity
+from cade_cli.scale.memory import BASE_BYTES, matching_memory_bytes, parse_memory
 from cade_cli.scale.tiling import estimate_disparity_tiled, seam_distance
 from cade_cli.scale.windows import method_collar
-from cade_cli.scale.memory import BASE_BYTES, matching_memory_bytes, parse_memory
+from cade_cli.stereo import estimate_disparity
 
 METHODS = ("census-sgm", "sgbm", "cade")
 BINS = ((0, 8), (8, 32), (32, None))

@@ -41,9 +41,9 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.scale.range import range_margin
-from cade_cli.rigs.self_check import fit_vertical_misalignment
 from cade_cli.matching.sparse import gradient_image, gradient_matches
+from cade_cli.rigs.self_check import fit_vertical_misalignment
+from cade_cli.scale.range import range_margin
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""

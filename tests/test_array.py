@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
-from cade_cli.rigs.array import fuse_votes, masked_median, register_array
-from cade_cli.rigs.array_geometry import ArrayCamera, array_geometry, baseline_frame, plane_mapping_from_points
-from cade_cli.rigs.array_cube import read_array_cube, write_array_cube
-from cade_cli.rigs.array_score import gradient_correlation, score_cubes
 from cade_cli.errors import CadeError
+from cade_cli.rigs.array import fuse_votes, masked_median, register_array
+from cade_cli.rigs.array_cube import read_array_cube, write_array_cube
+from cade_cli.rigs.array_geometry import ArrayCamera, array_geometry, baseline_frame, plane_mapping_from_points
+from cade_cli.rigs.array_score import gradient_correlation, score_cubes
 from cade_cli.rigs.rig_file import rig_from_dict
 from synthetic import smooth_texture
 

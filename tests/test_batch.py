@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cade_cli.errors import CadeError
+from cade_cli.io.disparity import read_disparity
 from cade_cli.scale.batch import cap_jobs, pair_memory_bytes
 from cade_cli.scale.batch_pairs import Pair, PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns
-from cade_cli.io.disparity import read_disparity
-from cade_cli.errors import CadeError
 from synthetic import render_pair
 from cli_runner import run_cade, write_png16
 

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity, read_pfm, write_disparity, write_pfm
-from cade_cli.io.match_outputs import colorize_disparity, disparity_picture, write_visualization
 from cade_cli.errors import CadeError
+from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity, read_pfm, write_disparity, write_pfm
 from cade_cli.io.images import read_band
+from cade_cli.io.match_outputs import colorize_disparity, disparity_picture, write_visualization
 
 
 def _signed_disparity(rng: np.random.Generator) -> np.ndarray:

@@ -10,8 +10,8 @@ import pytest
 import tifffile
 
 from cade_cli.errors import CadeError
-from cade_cli.io.images import load_image, read_band
 from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
+from cade_cli.io.images import load_image, read_band
 
 GREY8 = np.array([[0, 1, 128], [200, 254, 255]], dtype=np.uint8)
 GREY16 = np.array([[0, 1, 1000], [30000, 65534, 65535]], dtype=np.uint16)

@@ -20,10 +20,10 @@ import tifffile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cade_cli.io.disparity import read_disparity, read_validity, write_disparity
 from cade_cli.errors import CadeError
-from cade_cli.io.images import load_image
+from cade_cli.io.disparity import read_disparity, read_validity, write_disparity
 from cade_cli.io.image_files import MAX_IMAGE_PIXELS
+from cade_cli.io.images import load_image
 from synthetic import render_pair
 from cli_runner import run_cade
 

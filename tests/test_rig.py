@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import tifffile
 
-from cade_cli.rigs.calibration import CameraImages, calibrate_rig, pair_views
-from cade_cli.rigs.boards import detect_board, parse_board
-from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
+from cade_cli.io.disparity import read_disparity
+from cade_cli.rigs.boards import detect_board, parse_board
+from cade_cli.rigs.calibration import CameraImages, calibrate_rig, pair_views
 from cade_cli.rigs.rectification import rectify_pair, stereo_rectification
-from cade_cli.rigs.self_check import correct_vertical_misalignment, measure_vertical_misalignment
 from cade_cli.rigs.rig import Camera, Rig
 from cade_cli.rigs.rig_file import RIG_VERSION, load_rig, rig_from_dict, rig_to_dict, save_rig
+from cade_cli.rigs.self_check import correct_vertical_misalignment, measure_vertical_misalignment
 from synthetic import smooth_texture
 from cli_runner import run_cade
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.stereo import estimate_disparity
+from cade_cli.scale.memory import BASE_BYTES, IMAGE_BYTES, matching_memory_bytes, tile_memory_bytes, parse_memory
 from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles, seam_distance
 from cade_cli.scale.windows import LEARNED_COLLAR, method_collar, window_alignment
-from cade_cli.scale.memory import BASE_BYTES, IMAGE_BYTES, matching_memory_bytes, tile_memory_bytes, parse_memory
+from cade_cli.stereo import estimate_disparity
 from cli_runner import run_cade, write_png16
 from synthetic import render_pair
 

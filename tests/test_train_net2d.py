@@ -13,8 +13,8 @@ torch = pytest.importorskip("torch")
 
 from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
 from cade_cli.train.fit import TrainConfig, predict, train  # noqa: E402
-from cade_cli.train.networks import network_of  # noqa: E402
 from cade_cli.train.net2d import DIVISOR2D, CadeNet2D, HalfRefinement, normalised_correlation  # noqa: E402
+from cade_cli.train.networks import network_of  # noqa: E402
 
 
 def _with_batch_statistics(net: torch.nn.Module) -> torch.nn.Module:

@@ -11,7 +11,10 @@ from typing import Annotated, Optional
 
 import typer
 
-from cade_cli.cli.options import DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning
+from cade_cli.cli.options import (
+    DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption, VisRangeOption,
+    band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning,
+)
 
 
 def batch(
@@ -92,9 +95,13 @@ def batch(
     from rich.text import Text
 
     from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import BatchSummary, available_memory_bytes, cap_jobs, job_memory_bytes, log_document, run_dask, run_local
+    from cade_cli.scale.batch import (
+        BatchSummary, available_memory_bytes, cap_jobs, job_memory_bytes, log_document, run_dask, run_local,
+    )
     from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_pairs import PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns, skipped_result
+    from cade_cli.scale.batch_pairs import (
+        PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns, skipped_result,
+    )
     from cade_cli.errors import CadeError
 
     by_pattern = (left, right, output_dir)

@@ -36,10 +36,10 @@ def benchmark(
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.errors import CadeError
     from cade_cli.evaluation.loop import run_benchmark
     from cade_cli.evaluation.report import confidence_table, confidence_title, markdown, pixel_sets, table, title
-    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
     for path, suffix in ((json_file, ".json"), (report, ".md")):

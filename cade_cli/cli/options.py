@@ -192,8 +192,8 @@ def parse_memory_limit(memory_limit: str | None) -> int:
 
 def check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, ...]) -> None:
     """Refuse, before any work, outputs we could not write or must not overwrite."""
-    from cade_cli.io.atomic import check_writable
     from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import check_writable
 
     if path.suffix.lower() not in suffixes:
         raise CadeError(f"cannot write {path}: unsupported extension {path.suffix or '(none)'}; use one of {', '.join(suffixes)}")

@@ -9,7 +9,12 @@ from typing import Annotated, Optional
 
 import typer
 
-from cade_cli.cli.options import DEFAULT_METHOD, MaxDispAutoOption, MaxDispOption, MemoryLimitOption, MethodOption, MinDispAutoOption, MinDispOption, ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning, read_pair, report_misalignment, resolve_max_disp, resolve_range_options, warn_if_textureless
+from cade_cli.cli.options import (
+    DEFAULT_METHOD, MaxDispAutoOption, MaxDispOption, MemoryLimitOption, MethodOption, MinDispAutoOption, MinDispOption,
+    ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options,
+    parse_vis_range, print_note, print_warning, read_pair, report_misalignment, resolve_max_disp, resolve_range_options,
+    warn_if_textureless,
+)
 
 
 def disparity(
@@ -61,10 +66,10 @@ def disparity(
                                          "warning.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
+    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES
     from cade_cli.io.match_outputs import write_match_outputs
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.errors import CadeError
     from cade_cli.matching import densify, get_matcher
     from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles
 
@@ -157,14 +162,14 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     in the chosen frame."""
     import numpy as np
 
-    from cade_cli.io.atomic import atomic_outputs
     from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import get_matcher
-    from cade_cli.scale.range import AUTO
-    from cade_cli.rigs.self_check import VERTICAL_TOLERANCE_PX
     from cade_cli.rigs.outputs import FRAMES
-    from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
+    from cade_cli.rigs.rig_file import load_rig
+    from cade_cli.rigs.self_check import VERTICAL_TOLERANCE_PX
+    from cade_cli.scale.range import AUTO
 
     if frame not in FRAMES:
         raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
@@ -248,8 +253,8 @@ def register(
     """Warp MOVING into the view of REFERENCE and write both as one multi-band TIFF."""
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.disparity import read_disparity
-    from cade_cli.registration import register as register_band
     from cade_cli.io.registered import REGISTRATION_VIS_MODES, write_registration, write_registration_picture
+    from cade_cli.registration import register as register_band
 
     from cade_cli.errors import CadeError
 

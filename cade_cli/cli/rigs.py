@@ -10,7 +10,10 @@ from typing import Annotated, Optional
 
 import typer
 
-from cade_cli.cli.options import DEFAULT_METHOD, MethodOption, ModelOption, PreprocessOption, check_output, print_note, print_warning, report_misalignment
+from cade_cli.cli.options import (
+    DEFAULT_METHOD, MethodOption, ModelOption, PreprocessOption, check_output, print_note, print_warning,
+    report_misalignment,
+)
 
 
 def calibrate(
@@ -39,12 +42,12 @@ def calibrate(
 
     import cv2
 
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.rigs.calibration import CameraImages, calibrate_rig
-    from cade_cli.rigs.boards import draw_detection, parse_board
     from cade_cli.errors import CadeError
-    from cade_cli.io.images import read_band
+    from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
+    from cade_cli.io.images import read_band
+    from cade_cli.rigs.boards import draw_detection, parse_board
+    from cade_cli.rigs.calibration import CameraImages, calibrate_rig
     from cade_cli.rigs.rig_file import save_rig
 
     check_output(output, suffixes=(".json",), inputs=())
@@ -103,13 +106,13 @@ def rectify(
     """Rectify a pair of a rig's cameras (reference = left) and check the result's vertical alignment."""
     import cv2
 
+    from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.images import load_image
-    from cade_cli.rigs.rectification import check_image_size, needs_mirroring, rectification_of, rectify_pair
-    from cade_cli.rigs.self_check import MIN_CORRECTION_PX, correct_vertical_misalignment, measure_vertical_misalignment
     from cade_cli.rigs.outputs import RECTIFIED_IMAGE_SUFFIXES, epipolar_picture, luminance_of, write_rectified_image
-    from cade_cli.errors import CadeError
+    from cade_cli.rigs.rectification import check_image_size, needs_mirroring, rectification_of, rectify_pair
     from cade_cli.rigs.rig_file import load_rig
+    from cade_cli.rigs.self_check import MIN_CORRECTION_PX, correct_vertical_misalignment, measure_vertical_misalignment
 
     for path in output:
         check_output(path, suffixes=RECTIFIED_IMAGE_SUFFIXES, inputs=(left, right, rig_file))
@@ -179,14 +182,14 @@ def register_array(
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from cade_cli.rigs.array_geometry import array_geometry
-    from cade_cli.rigs.array_cube import array_cube, false_colour, write_array_cube
-    from cade_cli.rigs.array import register_array as register_cameras
+    from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.disparity import write_disparity
-    from cade_cli.errors import CadeError
     from cade_cli.io.images import read_band
     from cade_cli.matching import get_matcher
+    from cade_cli.rigs.array import register_array as register_cameras
+    from cade_cli.rigs.array_cube import array_cube, false_colour, write_array_cube
+    from cade_cli.rigs.array_geometry import array_geometry
     from cade_cli.rigs.rig_file import load_rig
 
     check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from cade_cli.io.atomic import check_writable_folder
 from cade_cli.data.dataset import Dataset, DatasetSource
 from cade_cli.data.fetch import BASE_URL_ENV, install, mirror_url
 from cade_cli.data.flyingthings3d import FLYINGTHINGS3D
@@ -22,6 +21,7 @@ from cade_cli.data.folder import FOLDER
 from cade_cli.data.kitti import KITTI2012, KITTI2015
 from cade_cli.data.middlebury import MIDDEVAL3, MIDDLEBURY05, MIDDLEBURY06, MIDDLEBURY14
 from cade_cli.errors import CadeError, lookup
+from cade_cli.io.atomic import check_writable_folder
 
 if TYPE_CHECKING:
     from rich.progress import Progress

@@ -24,8 +24,8 @@ import numpy as np
 
 from cade_cli.data.fetch import Archive
 from cade_cli.errors import CadeError
-from cade_cli.io.images import load_image
 from cade_cli.io.image_files import decode_with_cv2
+from cade_cli.io.images import load_image
 
 LR_CONSISTENCY_TOLERANCE = 1.0
 """Max |d_left - d_right| (px) for a left pixel to count as non-occluded (Middlebury 2005/2006)."""

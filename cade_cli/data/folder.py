@@ -7,8 +7,8 @@ from functools import partial
 from pathlib import Path
 
 from cade_cli.data.dataset import Dataset, Scene, make_scene
-from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity
 from cade_cli.errors import CadeError
+from cade_cli.io.disparity import DISPARITY_SUFFIXES, read_disparity
 from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
 
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from cade_cli.data.dataset import Dataset, DatasetSource, Scene, grey_png, make_scene, nonoccluded_mask, subdirs_with
 from cade_cli.data.fetch import Archive, Expected
-from cade_cli.io.disparity import read_disparity
 from cade_cli.errors import CadeError
+from cade_cli.io.disparity import read_disparity
 
 HOST = "https://vision.middlebury.edu"
 

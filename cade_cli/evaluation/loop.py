@@ -22,13 +22,13 @@ from typing import Any, TypeVar
 import numpy as np
 
 from cade_cli.allocator import retain_freed_memory
-from cade_cli.io.atomic import atomic_output
 from cade_cli.data import Dataset, Scene, get_dataset
 from cade_cli.errors import CadeError, lookup
 from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
 from cade_cli.evaluation.metrics import METRIC_NAMES, score
 from cade_cli.evaluation.protocols import get_protocol, run_protocol
 from cade_cli.evaluation.timing import Timing, use_threads
+from cade_cli.io.atomic import atomic_output
 from cade_cli.matching import MATCHERS, PREPROCESS_CHOICES
 
 T = TypeVar("T")

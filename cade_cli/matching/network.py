@@ -32,8 +32,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from cade_cli.io.checksum import file_sha256
 from cade_cli.errors import CadeError
+from cade_cli.io.checksum import file_sha256
 from cade_cli.matching.base import DisparityRange
 from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
 from cade_cli.spectral import network_input

@@ -24,9 +24,9 @@ from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult, densify
 from cade_cli.rigs.rig import Camera, Rectification, Rig
 from cade_cli.rigs.self_check import VerticalMisalignment, align_vertically, measure_vertical_misalignment
+from cade_cli.scale.memory import default_memory_limit
 from cade_cli.scale.range import RangeEstimate, resolve_range
 from cade_cli.scale.tiling import TilePlan, estimate_disparity_tiled
-from cade_cli.scale.memory import default_memory_limit
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS
 
 

@@ -113,8 +113,8 @@ def planned_pair_memory(pair: Pair) -> tuple[int, int, int]:
 
 @functools.lru_cache(maxsize=4)
 def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
-    from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import rig_pair_rectification
+    from cade_cli.rigs.rig_file import load_rig
 
     return tuple(rig_pair_rectification(load_rig(rig), camera)[1].image_size)
 
@@ -138,8 +138,8 @@ def cap_jobs(jobs: int, per_job_bytes: int, available_bytes: int | None = None) 
 
 def image_size(path: Path) -> tuple[int, int]:
     """(width, height) of an image file, from its header where it tells, else by decoding it."""
-    from cade_cli.io.images import load_image
     from cade_cli.io.image_files import header_size
+    from cade_cli.io.images import load_image
 
     with open(path, "rb") as stream:
         size = header_size(stream.read(1 << 16))

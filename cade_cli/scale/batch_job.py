@@ -156,9 +156,9 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
     """The pair as ``cade disparity LEFT RIGHT --rig`` matches it (:mod:`cade_cli.rigs.pair`:
     an ``auto`` bound estimated on the rectified pair, matched whole or as tiles within the
     memory limit); a rectification self-check above tolerance, or skipped, is a note."""
-    from cade_cli.rigs.self_check import VERTICAL_TOLERANCE_PX
-    from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
+    from cade_cli.rigs.rig_file import load_rig
+    from cade_cli.rigs.self_check import VERTICAL_TOLERANCE_PX
 
     options = pair.options
     rig = load_rig(options.rig)

@@ -20,8 +20,8 @@ from cade_cli.errors import CadeError
 from cade_cli.io.checksum import file_sha256
 from cade_cli.io.disparity import DISPARITY_SUFFIXES
 from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
-from cade_cli.scale.range import parse_bound
 from cade_cli.scale.memory import default_memory_limit
+from cade_cli.scale.range import parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
 
 
@@ -103,8 +103,8 @@ class PairOptions:
                                 f"RIG.json or drop {option}")
             return
         from cade_cli.rigs.outputs import FRAMES
-        from cade_cli.rigs.rig_file import load_rig
         from cade_cli.rigs.pair import rig_pair_rectification
+        from cade_cli.rigs.rig_file import load_rig
 
         if self.frame not in FRAMES:
             raise CadeError(f"unknown --frame {self.frame!r}; choose rectified or original")
