@@ -90,32 +90,15 @@ def batch(
     """
     from contextlib import nullcontext
 
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
-    from rich.text import Text
-
-    from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import (
-        BatchSummary, available_memory_bytes, cap_jobs, job_memory_bytes, log_document, run_dask, run_local,
-    )
-    from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_pairs import (
-        PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns, skipped_result,
-    )
     from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_output
+    from cade_cli.scale.batch import BatchSummary, log_document, run_dask, run_local
+    from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
 
     by_pattern = (left, right, output_dir)
-    if manifest is not None and any(value is not None for value in by_pattern):
-        raise CadeError("give either --manifest or --left, --right and --output-dir, not both")
-    if manifest is None and any(value is None for value in by_pattern):
-        missing = [name for name, value in zip(("--left", "--right", "--output-dir"), by_pattern) if value is None]
-        raise CadeError(f"missing {', '.join(missing)}: give --left 'A/*.png' --right 'B/*.png' --output-dir OUT, or "
-                        "--manifest pairs.csv")
-    if scheduler is not None and scheduler_file is not None:
-        raise CadeError("give --scheduler or --scheduler-file, not both")
+    _check_sources(manifest, by_pattern, scheduler, scheduler_file, jobs)
     cluster = scheduler is not None or scheduler_file is not None
-    if cluster and jobs != 1:
-        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
     min_disp, max_disp = parse_range_options(min_disp, max_disp)
     options = PairOptions(method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, model=model,
                           fill=fill, left_band=left_band, right_band=right_band,
@@ -124,29 +107,16 @@ def batch(
                           fix_vertical=fix_vertical, vis=vis, validity=validity, confidence=confidence, depth=depth,
                           points=points, vis_range=parse_vis_range(vis_range, vis), strict=strict)
     options.check()
-    if manifest is not None:
-        pairs = pairs_from_manifest(manifest, options=options)
-        log = log if log is not None else manifest.with_name(manifest.stem + ".log.json")
-    else:
-        pairs = pairs_from_patterns(left, right, output_dir, options=options, suffix="." + output_format.lower().lstrip("."))
-        if output_dir.exists() and not output_dir.is_dir():
-            raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
-        output_dir.mkdir(parents=True, exist_ok=True)
-        log = log if log is not None else output_dir / "cade-batch-log.json"
+    pairs, log = _pairs_and_log(options, manifest=manifest, left=left, right=right, output_dir=output_dir,
+                                output_format=output_format, log=log)
     check_output(log, suffixes=(".json",), inputs=())
     remove_stale_temporaries(pairs)  # left by a run that was killed
     results = [] if force else [skipped_result(pair) for pair in pairs if is_finished(pair)]
     finished = {result.output for result in results}
     todo = [pair for pair in pairs if str(pair.output) not in finished]
-    engine_name = f"dask {scheduler or scheduler_file}" if cluster else f"{jobs} local job(s)"
     if todo and not cluster and jobs > 1:
-        width, height, per_job = job_memory_bytes(todo)  # the largest pair, or the memory limit
-        allowed = cap_jobs(jobs, per_job)
-        if allowed < jobs:
-            print_note(f"--jobs {jobs} lowered to {allowed}: the largest pair, {width}x{height}, may take "
-                  f"{per_job / 2**30:.1f} GB per job (within its memory limit) and "
-                  f"{available_memory_bytes() / 2**30:.1f} GB are available")
-            jobs, engine_name = allowed, f"{allowed} local job(s)"
+        jobs = _jobs_that_fit(todo, jobs)
+    engine_name = f"dask {scheduler or scheduler_file}" if cluster else f"{jobs} local job(s)"
     if threads is None and not cluster and jobs > 1:
         threads = max(1, (os.cpu_count() or 1) // jobs)
     engine = (run_dask(todo, address=scheduler, scheduler_file=scheduler_file, threads=threads) if cluster
@@ -157,16 +127,7 @@ def batch(
               "output_dir": None if output_dir is None else str(output_dir), "force": force,
               "rig": None if rig_file is None else str(rig_file),
               "options": {key: value for key, value in options.fingerprint().items()}}
-
-    class PairRate(ProgressColumn):
-        def render(self, task) -> Text:
-            rate = task.completed / task.elapsed if task.elapsed else 0.0
-            return Text(f"{rate:.2f} pairs/s")
-
-    console = Console(stderr=True, soft_wrap=True)
-    progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), PairRate(),
-                        TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True,
-                        disable=not console.is_terminal)
+    progress = _progress_bar()
     if summary.skipped:
         print_note(f"{summary.skipped} of {len(pairs)} pairs already finished (outputs verified); --force redoes them")
     started = time.perf_counter()
@@ -177,17 +138,7 @@ def batch(
             for result in engine:
                 results.append(result)
                 summary.add(result)
-                for note in result.notes:
-                    if note not in shown_notes:
-                        shown_notes.add(note)
-                        progress.console.print(f"note: {note}", highlight=False, markup=False)
-                for warning in result.warnings:  # the pair check's findings
-                    progress.console.print(f"warning: {result.output}: {warning}", highlight=False, markup=False)
-                if result.status == "failed":
-                    progress.console.print(f"warning: pair {result.left}, {result.right} failed: {result.error}",
-                                           highlight=False, markup=False)
-                elif result.range_note is not None:
-                    progress.console.print(f"note: {result.output}: {result.range_note}", highlight=False, markup=False)
+                _show_result(progress.console, result, shown_notes)
                 progress.update(bar, advance=1)
     except KeyboardInterrupt:
         summary.interrupted = True
@@ -203,3 +154,85 @@ def batch(
           f"{summary.seconds:.1f} s ({summary.pairs_per_minute:.1f} pairs/min, {engine_name}); log {log}")
     if summary.failed:
         raise CadeError(f"{summary.failed} of {summary.total} pairs failed (each named above and in {log})")
+
+
+def _pairs_and_log(options, *, manifest: Path | None, left: str | None, right: str | None, output_dir: Path | None,
+                   output_format: str, log: Path | None) -> tuple[list, Path]:
+    """The batch's pairs (from the manifest, or the two patterns into ``output_dir``, made if
+    missing) and its log file (default: beside the manifest, or in ``output_dir``)."""
+    from cade_cli.errors import CadeError
+    from cade_cli.scale.batch_pairs import pairs_from_manifest, pairs_from_patterns
+
+    if manifest is not None:
+        pairs = pairs_from_manifest(manifest, options=options)
+        return pairs, log if log is not None else manifest.with_name(manifest.stem + ".log.json")
+    pairs = pairs_from_patterns(left, right, output_dir, options=options, suffix="." + output_format.lower().lstrip("."))
+    if output_dir.exists() and not output_dir.is_dir():
+        raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
+    output_dir.mkdir(parents=True, exist_ok=True)
+    return pairs, log if log is not None else output_dir / "cade-batch-log.json"
+
+
+def _jobs_that_fit(todo: list, jobs: int) -> int:
+    """``jobs``, lowered (with a note) until that many jobs of the largest pair fit the memory available."""
+    from cade_cli.scale.batch import available_memory_bytes, cap_jobs, job_memory_bytes
+
+    width, height, per_job = job_memory_bytes(todo)  # the largest pair, or the memory limit
+    allowed = cap_jobs(jobs, per_job)
+    if allowed < jobs:
+        print_note(f"--jobs {jobs} lowered to {allowed}: the largest pair, {width}x{height}, may take "
+                   f"{per_job / 2**30:.1f} GB per job (within its memory limit) and "
+                   f"{available_memory_bytes() / 2**30:.1f} GB are available")
+    return allowed
+
+
+def _show_result(console, result, shown_notes: set[str]) -> None:
+    """Print what one finished pair has to say above the progress bar: its notes (each note
+    once per run), the pair check's warnings, its failure or its range note."""
+    def say(line: str) -> None:
+        console.print(line, highlight=False, markup=False)
+
+    for note in result.notes:
+        if note not in shown_notes:
+            shown_notes.add(note)
+            say(f"note: {note}")
+    for warning in result.warnings:  # the pair check's findings
+        say(f"warning: {result.output}: {warning}")
+    if result.status == "failed":
+        say(f"warning: pair {result.left}, {result.right} failed: {result.error}")
+    elif result.range_note is not None:
+        say(f"note: {result.output}: {result.range_note}")
+
+
+def _check_sources(manifest: Path | None, by_pattern: tuple, scheduler: str | None, scheduler_file: Path | None,
+                   jobs: int) -> None:
+    """Refuse a manifest given with patterns, patterns given in part, two schedulers, or --jobs on a cluster."""
+    from cade_cli.errors import CadeError
+
+    if manifest is not None and any(value is not None for value in by_pattern):
+        raise CadeError("give either --manifest or --left, --right and --output-dir, not both")
+    if manifest is None and any(value is None for value in by_pattern):
+        missing = [name for name, value in zip(("--left", "--right", "--output-dir"), by_pattern) if value is None]
+        raise CadeError(f"missing {', '.join(missing)}: give --left 'A/*.png' --right 'B/*.png' --output-dir OUT, or "
+                        "--manifest pairs.csv")
+    if scheduler is not None and scheduler_file is not None:
+        raise CadeError("give --scheduler or --scheduler-file, not both")
+    if (scheduler is not None or scheduler_file is not None) and jobs != 1:
+        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
+
+
+def _progress_bar():
+    """The batch's bar on stderr (pairs done of those to do, pairs/s, ETA); off when stderr is not a terminal."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
+    from rich.text import Text
+
+    class PairRate(ProgressColumn):
+        def render(self, task) -> Text:
+            rate = task.completed / task.elapsed if task.elapsed else 0.0
+            return Text(f"{rate:.2f} pairs/s")
+
+    console = Console(stderr=True, soft_wrap=True)
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), PairRate(),
+                    TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True,
+                    disable=not console.is_terminal)

@@ -204,22 +204,8 @@ def register_array(
     rig = load_rig(rig_file)
     geometry = array_geometry(rig)
     order = (geometry.reference, *geometry.cameras)
-    channels = None
-    if vis is not None:
-        channels = ([name.strip() for name in vis_bands.split(",")] if vis_bands is not None
-                    else [rig.cameras[0].name, rig.reference, rig.cameras[-1].name])
-        unknown = [name for name in channels if name not in rig.names]
-        if len(channels) != 3 or unknown:
-            raise CadeError(f"--vis-bands must name three cameras of the rig ({', '.join(rig.names)}), "
-                            f"got {vis_bands!r}")
-    if len(images) != len(rig.cameras):
-        raise CadeError(f"the rig has {len(rig.cameras)} cameras ({', '.join(rig.names)}) but {len(images)} images "
-                        "were given; give one image per camera")
-    by_stem = {path.stem: path for path in images}
-    if set(by_stem) == set(rig.names):
-        paths = {name: by_stem[name] for name in rig.names}
-    else:
-        paths = dict(zip(rig.names, images))
+    channels = None if vis is None else _false_colour_cameras(rig, vis_bands)
+    paths = _image_of_each_camera(rig, images)
     bands = []
     for camera in order:
         band, note = read_band(paths[camera.name])
@@ -262,6 +248,31 @@ def register_array(
     print(f"{output}: {width}x{height}, {len(order)} cameras onto {geometry.reference.name}, {source}; valid: {seen}; "
           f"{seconds:.1f} s")
 
+
+
+def _false_colour_cameras(rig, vis_bands: str | None) -> list[str]:
+    """The three cameras ``--vis`` shows as red, green, blue: ``--vis-bands`` or (default) the
+    first camera, the reference, the last."""
+    from cade_cli.errors import CadeError
+
+    channels = ([name.strip() for name in vis_bands.split(",")] if vis_bands is not None
+                else [rig.cameras[0].name, rig.reference, rig.cameras[-1].name])
+    if len(channels) != 3 or any(name not in rig.names for name in channels):
+        raise CadeError(f"--vis-bands must name three cameras of the rig ({', '.join(rig.names)}), got {vis_bands!r}")
+    return channels
+
+
+def _image_of_each_camera(rig, images: list[Path]) -> dict[str, Path]:
+    """Camera name -> its image: by file stem when the stems are the camera names, else in the rig's order."""
+    from cade_cli.errors import CadeError
+
+    if len(images) != len(rig.cameras):
+        raise CadeError(f"the rig has {len(rig.cameras)} cameras ({', '.join(rig.names)}) but {len(images)} images "
+                        "were given; give one image per camera")
+    by_stem = {path.stem: path for path in images}
+    if set(by_stem) == set(rig.names):
+        return {name: by_stem[name] for name in rig.names}
+    return dict(zip(rig.names, images))
 
 def array_score(
     cubes: Annotated[list[Path], typer.Argument(metavar="CUBE...", help="Cubes of one array (`cade register-array`), "
