@@ -140,13 +140,15 @@ def warn_if_textureless(left: Path, right: Path, left_image, right_image) -> Non
 
 
 def resolve_max_disp(max_disp: int | None, width: int) -> int:
+    """``max_disp``, or when not given the library's default for ``width``
+    (:func:`cade_cli.stereo.default_max_disparity`), announced on stderr."""
     from cade_cli.stereo import default_max_disparity
 
     if max_disp is not None:
         return max_disp
     chosen = default_max_disparity(width)
     print_note(f"--max-disp not given: searching up to {chosen} px (a quarter of the width); "
-          "set it to your scene's largest disparity for speed and accuracy")
+               "set it to your scene's largest disparity for speed and accuracy")
     return chosen
 
 
@@ -159,14 +161,15 @@ def parse_range_options(min_disp: str | int, max_disp: str | int | None) -> tupl
 
 
 def resolve_range_options(min_disp: int | str, max_disp: int | str | None, left_image, right_image) -> tuple[int, int]:
-    """The searched (min, max), px: 'auto' bounds estimated and announced on stderr, a
-    missing --max-disp defaulted (:func:`resolve_max_disp`)."""
+    """The searched (min, max), px, as the library resolves it (:func:`cade_cli.scale.range.resolve_range`:
+    'auto' bounds estimated, a missing --max-disp defaulted), with what was chosen announced on stderr."""
     from cade_cli.scale.range import AUTO, resolve_range
 
-    if AUTO not in (min_disp, max_disp):
-        return int(min_disp), resolve_max_disp(max_disp, left_image.shape[1])
     searched, estimate = resolve_range(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
-    print_note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    if estimate is not None:
+        print_note(estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
+    elif max_disp is None:
+        resolve_max_disp(None, left_image.shape[1])  # the note of the default
     return searched.minimum, searched.maximum
 
 
