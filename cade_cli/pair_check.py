@@ -6,12 +6,16 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
 :func:`check_pair` tests the three assumptions on sparse feature matches, before matching:
 
 1. both bands are downscaled by :func:`check_factor` (area averaging, width kept at least
-   :data:`CHECK_WIDTH` px) and matched sparsely with ORB features on their gradient images
-   (:func:`cade_cli.matching.sparse.gradient_matches`: the detector the rig self-check uses,
-   made cheap; bands from different filters match, contrast inversions included; only
-   features within :func:`max_horizontal` columns and :data:`MAX_VERTICAL_SHARE` rows of
-   each other compete), and the row of each match refined to a fraction of a pixel
-   (:func:`subpixel_row_shift`, on the same gradient images);
+   :data:`CHECK_WIDTH` px), turned into colour-agnostic gradient images
+   (:func:`gradient_band`: bands from different filters match, contrast inversions
+   included), and described by upright ORB features (:func:`describe_band`: FAST corners
+   ranked by Harris response, :func:`feature_count` of them, one per
+   :data:`AREA_PER_FEATURE` px of the pair, so that the work follows the image area as the
+   matchers' does; the binary pattern is not steered by each corner's orientation, which
+   between spectral bands is unstable); features within :func:`max_horizontal` columns and
+   :data:`MAX_VERTICAL_SHARE` rows of each other compete (:func:`match_features`), and the
+   row of each match is refined to a fraction of a pixel (:func:`subpixel_row_shift`, on
+   the same gradient images);
 2. the row difference of the matches is fitted as a vertical offset plus a rotation about
    the image centre: the line (offset, rotation) that most matches lie on is found by a
    vote over rotations of up to :data:`MAX_ROTATION_DEG` (:func:`dominant_line`: cross-band
@@ -23,36 +27,42 @@ looks plausible (a pair shifted 6 px vertically keeps most pixels "valid") but i
    with a non-negative range means LEFT and RIGHT are swapped; mostly outside the range
    searched means the range misses the scene, and a range that holds them is suggested.
 
-The check only reads the pair: it never changes a disparity. Its cost is nearly fixed
-(about 10 ms on one thread): under 10 % of the fastest matcher's time on Q-size Middlebury
-pairs from about 700 x 480 px, but up to about 40 % on a small one such as ArtL, 347 x 277
-(``benchmarks/pair_check.py``, docs/pair-check.md, which also counts its false alarms on
-every rectified Middlebury, KITTI and FlyingThings3D pair of the data folder). A pair with too little texture
-shared by the bands gives too few matches to judge: the check is then inconclusive and
-finds no problem.
+The check only reads the pair: it never changes a disparity, and its result does not depend
+on the thread count (with two OpenCV threads or more the two bands are described side by
+side). Its cost follows the image area: about 5 ms for a small pair such as ArtL, 347 x 277,
+about 8-9 ms for a Q-size Middlebury pair, 4-6 % of the fastest matcher's (sgbm) time on
+those but about 20 % on ArtL (``benchmarks/pair_check.py``, docs/pair-check.md, which also
+counts its false alarms on every rectified Middlebury, KITTI and FlyingThings3D pair of the
+data folder). A pair with too little texture shared by the bands gives too few matches to
+judge: the check is then inconclusive and finds no problem.
 """
 
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching.sparse import gradient_image, gradient_matches
 from cade_cli.rigs.self_check import fit_vertical_misalignment
 from cade_cli.scale.range import range_margin
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""
 FEATURES = 600
-"""The most ORB features detected per band."""
-FAST_THRESHOLD = 5
-"""FAST threshold of the ORB detector (grey levels of the gradient images)."""
+"""The most features detected per band."""
+MIN_FEATURES = 100
+"""The fewest features detected per band."""
+AREA_PER_FEATURE = 320
+"""One feature per this many px of the pair's full-size area (between :data:`MIN_FEATURES` and
+:data:`FEATURES`): the check's work follows the image area, as the matchers' does."""
+FAST_THRESHOLD = 40
+"""FAST threshold of the detector (grey levels of :func:`gradient_band`, edges about 64)."""
 PATCH_SIZE = 31
-"""ORB patch size (px of the downscaled band)."""
+"""Descriptor patch size (px of the downscaled band)."""
 MAX_VERTICAL_SHARE = 0.05
 """Matches whose rows differ by more than this share of the width (at least
 :data:`MIN_MAX_VERTICAL_PX`) are not considered: room for a 2 degree rotation plus an offset."""
@@ -187,6 +197,90 @@ def check_factor(width: int, *, check_width: int = CHECK_WIDTH) -> int:
     return factor
 
 
+def feature_count(width: int, height: int) -> int:
+    """Features detected per band for a ``width`` x ``height`` pair: one per
+    :data:`AREA_PER_FEATURE` px, between :data:`MIN_FEATURES` and :data:`FEATURES`."""
+    return int(min(max(round(width * height / AREA_PER_FEATURE), MIN_FEATURES), FEATURES))
+
+
+def gradient_band(band: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 colour-agnostic gradient image of a float32 band: the gradient magnitude
+    (Gaussian sigma 1, Sobel) over its local mean (31 x 31 box), times 64; the same for a band
+    and its inverse, and similar across spectral bands. The cheap form (cv2 only, no float64
+    or NumPy temporaries) of :func:`cade_cli.matching.sparse.gradient_image`."""
+    smooth = cv2.GaussianBlur(band, (0, 0), 1.0)
+    magnitude = cv2.magnitude(cv2.Sobel(smooth, cv2.CV_32F, 1, 0, ksize=3),
+                              cv2.Sobel(smooth, cv2.CV_32F, 0, 1, ksize=3))
+    local = cv2.blur(magnitude, (31, 31))
+    local += 1e-3 * float(magnitude.max() + 1e-12)
+    return cv2.divide(magnitude, local, scale=64, dtype=cv2.CV_8U)
+
+
+def describe_band(band: np.ndarray, features: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+    """Upright features of one band: ((N, 2) float64 (x, y) px, (N, 32) uint8 ORB descriptors or
+    None, its :func:`gradient_band`).
+
+    The :data:`features` FAST corners (threshold :data:`FAST_THRESHOLD`) with the strongest
+    Harris response on the gradient image, each described by ORB's binary test pattern at
+    angle 0: a rectified pair's views are not rotated against each other, so steering the
+    pattern by each corner's own orientation (ORB's default) only adds wrong matches, the
+    more so between spectral bands where the orientation of a corner is unstable."""
+    gradient = gradient_band(band)
+    finder = cv2.ORB_create(nfeatures=features, nlevels=1, fastThreshold=FAST_THRESHOLD, edgeThreshold=PATCH_SIZE,
+                            patchSize=PATCH_SIZE)
+    keys = finder.detect(gradient, None)
+    for key in keys:
+        key.angle = 0.0
+    keys, descriptors = finder.compute(gradient, keys)
+    if descriptors is None or len(keys) < 2:
+        return np.zeros((0, 2)), None, gradient
+    return cv2.KeyPoint_convert(keys).astype(np.float64), descriptors, gradient
+
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def band_features(left: np.ndarray, right: np.ndarray, *, features: int):
+    """:func:`describe_band` of both bands: ((points, descriptors) left, (...) right, (gradient
+    images)). With OpenCV allowed two threads or more (``cv2.getNumThreads``, as the matchers
+    are), the two bands are processed side by side."""
+    global _POOL
+    if cv2.getNumThreads() >= 2:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="cade-pair-check")
+        pending = _POOL.submit(describe_band, right, features)
+        found_left, found_right = describe_band(left, features), pending.result()
+    else:
+        found_left, found_right = describe_band(left, features), describe_band(right, features)
+    return found_left[:2], found_right[:2], (found_left[2], found_right[2])
+
+
+MATCH_RATIO = 0.8
+"""Lowe's ratio test: the best candidate's Hamming distance below this share of the second's."""
+
+
+def match_features(points_left: np.ndarray, desc_left: np.ndarray | None, points_right: np.ndarray,
+                   desc_right: np.ndarray | None, *, max_vertical: float,
+                   max_horizontal: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mutual nearest neighbours by Hamming distance that pass the ratio test, among the
+    features whose rows differ by at most ``max_vertical`` px and columns by at most
+    ``max_horizontal`` px (only those distances are computed: ``cv2.batchDistance`` with a
+    mask). Returns (points_left, points_right), (N, 2) each."""
+    if desc_left is None or desc_right is None:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    left32, right32 = points_left.astype(np.float32), points_right.astype(np.float32)
+    allowed = ((np.abs(left32[:, 1:2] - right32[:, 1]) <= max_vertical)
+               & (np.abs(left32[:, 0:1] - right32[:, 0]) <= max_horizontal)).view(np.uint8)
+    distance, nearest = cv2.batchDistance(desc_left, desc_right, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2,
+                                          mask=allowed)
+    _, back = cv2.batchDistance(desc_right, desc_left, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=1,
+                                mask=np.ascontiguousarray(allowed.T))
+    best, back = nearest[:, 0], back[:, 0]
+    keep = (nearest[:, 1] >= 0) & (best >= 0) & (distance[:, 0] < MATCH_RATIO * distance[:, 1])
+    keep[keep] = back[best[keep]] == np.flatnonzero(keep)
+    return points_left[keep], points_right[best[keep]]
+
+
 def check_pair(left: np.ndarray, right: np.ndarray, *, min_disp: int = 0, max_disp: int) -> PairCheck:
     """Test a pair before matching it: vertical alignment, order, and the range searched.
 
@@ -212,11 +306,12 @@ def check_pair(left: np.ndarray, right: np.ndarray, *, min_disp: int = 0, max_di
         left, right = (cv2.resize(band, size, interpolation=cv2.INTER_AREA) for band in (left, right))
     scale_x, scale_y = width / left.shape[1], height / left.shape[0]
     max_vertical = max(MAX_VERTICAL_SHARE * width, MIN_MAX_VERTICAL_PX)
-    gradient_left, gradient_right = gradient_image(left), gradient_image(right)
-    points_left, points_right = gradient_matches(gradient_left, gradient_right, detector="orb", features=FEATURES,
-                                                 max_vertical=max_vertical / scale_y,
-                                                 max_horizontal=max_horizontal(width, min_disp, max_disp) / scale_x,
-                                                 fast_threshold=FAST_THRESHOLD, patch_size=PATCH_SIZE)
+    features = feature_count(width, height)
+    (points_left, desc_left), (points_right, desc_right), (gradient_left, gradient_right) = band_features(
+        left, right, features=features)
+    points_left, points_right = match_features(points_left, desc_left, points_right, desc_right,
+                                               max_vertical=max_vertical / scale_y,
+                                               max_horizontal=max_horizontal(width, min_disp, max_disp) / scale_x)
     row_shift = subpixel_row_shift(gradient_left, gradient_right, points_left, points_right)
     points_left, points_right = points_left * (scale_x, scale_y), points_right * (scale_x, scale_y)
     dy = points_right[:, 1] + row_shift * scale_y - points_left[:, 1]
@@ -299,7 +394,7 @@ def subpixel_row_shift(left: np.ndarray, right: np.ndarray, points_left: np.ndar
     rows either side.
 
     Args:
-        left, right: (H, W) images the points were found on (e.g. :func:`gradient_image`).
+        left, right: (H, W) images the points were found on (e.g. :func:`gradient_band`).
         points_left, points_right: (N, 2) (x, y) px of the matches, whole pixels.
 
     Returns:

@@ -252,3 +252,40 @@ def test_matches_further_apart_than_max_horizontal_are_not_made(art_pair):
     assert len(found_left) > 20
     assert np.all(np.abs(found_left[:, 0] - found_right[:, 0]) <= 30 + 1e-3)
     assert np.all(np.abs(found_left[:, 1] - found_right[:, 1]) <= 20 + 1e-3)
+
+
+@pytest.mark.parametrize("scene", ["Art", "Moebius"])
+def test_a_shifted_cross_band_pair_is_measured(shared_data, scene):
+    """Red against blue, the right band 3 px lower: upright descriptors match across the bands
+    (steered ORB left both of these inconclusive)."""
+    folder = shared_data / "middlebury2005" / scene
+    left, right = (cv2.imread(str(folder / name)).astype(np.float32) / 255 for name in ("view1.png", "view5.png"))
+    red, blue = np.ascontiguousarray(left[:, :, 2]), np.ascontiguousarray(right[:, :, 0])
+    found = check_pair(red, shifted_down(blue, 3.0), max_disp=80)
+    assert found.problems == ("vertical",)
+    assert found.vertical_offset == pytest.approx(3.0, abs=0.5)
+
+
+def test_the_feature_count_follows_the_image_area():
+    from cade_cli.pair_check import FEATURES, MIN_FEATURES, feature_count
+
+    assert feature_count(347, 277) == pytest.approx(347 * 277 / 320, abs=1)
+    assert feature_count(1400, 1000) == FEATURES
+    assert feature_count(64, 48) == MIN_FEATURES
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_the_result_does_not_depend_on_the_thread_count(art_pair, threads):
+    left, right = art_pair
+    before = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(threads)
+        found = check_pair(left, shifted_down(right, 3.0), max_disp=80)
+    finally:
+        cv2.setNumThreads(before)
+    cv2.setNumThreads(1)
+    try:
+        reference = check_pair(left, shifted_down(right, 3.0), max_disp=80)
+    finally:
+        cv2.setNumThreads(before)
+    assert found == reference
