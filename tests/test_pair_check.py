@@ -193,8 +193,8 @@ def test_batch_strict_fails_the_shifted_pair_only_and_records_the_offset(shifted
 
 
 def dominant_line_reference(x, dy, *, width, band=1.0):
-    """The slow, obviously-correct :func:`~cade_cli.pair_check.dominant_line`: one rotation at a time."""
-    from cade_cli.pair_check import MAX_ROTATION_DEG, ROTATION_STEP_DEG
+    """The slow, obviously-correct :func:`~cade_cli.pair_features.dominant_line`: one rotation at a time."""
+    from cade_cli.pair_features import MAX_ROTATION_DEG, ROTATION_STEP_DEG
 
     best_count, best_residual = -1, dy
     angles = np.arange(-MAX_ROTATION_DEG, MAX_ROTATION_DEG + 1e-9, ROTATION_STEP_DEG)
@@ -210,7 +210,7 @@ def dominant_line_reference(x, dy, *, width, band=1.0):
 
 
 def test_dominant_line_agrees_with_its_reference(rng):
-    from cade_cli.pair_check import dominant_line
+    from cade_cli.pair_features import dominant_line
 
     for _ in range(200):
         count = int(rng.integers(1, 150))
@@ -267,7 +267,7 @@ def test_a_shifted_cross_band_pair_is_measured(shared_data, scene):
 
 
 def test_the_feature_count_follows_the_image_area():
-    from cade_cli.pair_check import FEATURES, MIN_FEATURES, feature_count
+    from cade_cli.pair_features import FEATURES, MIN_FEATURES, feature_count
 
     assert feature_count(347, 277) == pytest.approx(347 * 277 / 320, abs=1)
     assert feature_count(1400, 1000) == FEATURES
