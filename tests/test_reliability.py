@@ -152,12 +152,12 @@ def no_space(path, *args, **kwargs):
 def test_a_side_output_failing_late_leaves_every_output_untouched(pair, tmp_path, capfd, monkeypatch):
     """The disk fills while --validity is written: the map and --vis, already written to
     their temporaries, do not replace the existing files, and no temporary is left."""
-    import cade_cli.io.disparity
+    import cade_cli.io.match_outputs
 
     left, right = pair
     out, vis, mask = tmp_path / "o.pfm", tmp_path / "v.png", tmp_path / "m.png"
     out.write_text("ORIGINAL")
-    monkeypatch.setattr(cade_cli.io.disparity, "write_validity", no_space)
+    monkeypatch.setattr(cade_cli.io.match_outputs, "write_validity", no_space)
     code, _, stderr = run_cade(["disparity", left, right, "-o", out, "--vis", vis, "--validity", mask,
                                 "--max-disp", 8], capfd)
     assert_one_line_error(code, stderr, "could not write", "m.png", "No space left")
