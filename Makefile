@@ -7,13 +7,24 @@ OUT := out
 
 .PHONY: demo test wheel-check bench-speed bench-memory train gpu-data clean
 
-$(BIN)/cade: pyproject.toml
+# One stamp per install level, so that `make demo` (runtime only: no PyTorch) then
+# `make test` (test + train extras) upgrades the same venv; each leaves $(BIN)/cade.
+RUNTIME := $(VENV)/.installed-runtime
+TESTING := $(VENV)/.installed-test
+
+$(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,train]'
+
+$(RUNTIME): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
 	touch $@
 
-demo: $(BIN)/cade
+$(TESTING): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[test,train]'
+	touch $@ $(RUNTIME)
+
+demo: $(RUNTIME)
 	mkdir -p $(OUT)
 	$(BIN)/cade disparity $(SAMPLE)/left_R.png $(SAMPLE)/right_B.png -o $(OUT)/art_disparity.pfm \
 		--max-disp 80 --vis $(OUT)/art_disparity.png
@@ -22,7 +33,7 @@ demo: $(BIN)/cade
 	@echo "wrote $(OUT)/art_disparity.pfm, $(OUT)/art_disparity.png (colourised), $(OUT)/art_registered.tif," \
 		"$(OUT)/art_registered.png (overlay)"
 
-test: $(BIN)/cade
+test: $(TESTING)
 	$(BIN)/python -m pytest -q
 
 # Speed comparison with CNES Pandora (its own venv: Pandora pins its own dependencies).
@@ -32,7 +43,7 @@ bench-speed:
 	$(VENV)-bench/bin/python benchmarks/speed.py --data-dir ../shared/data/middlebury2014/trainingQ --markdown docs/speed.md
 
 # Peak memory of `cade disparity --method cade` on a generated 3000x2000 (6 MP) pair.
-bench-memory: $(BIN)/cade
+bench-memory: $(RUNTIME)
 	$(BIN)/python benchmarks/memory.py --width 3000 --height 2000 --max-disp 200
 
 # Train the CADE network on generated data (torch only here, CPU build pinned) and export
@@ -42,7 +53,7 @@ bench-memory: $(BIN)/cade
 RUN ?= runs/cade-v4
 INIT ?= runs/cade-v3/last.pt
 STEPS ?= 6000
-train: $(BIN)/cade
+train: $(RUNTIME)
 	$(BIN)/python -m pip install --quiet -e '.[train,test]'
 	$(BIN)/python -m cade_cli.train fit --out $(RUN) --init $(INIT) --textures ../shared/data/textures \
 		--data-dir ../shared/data --steps $(STEPS) --lr 5e-4 --warmup 100 --seed 4 --device cpu --threads 2 --workers 1
@@ -58,7 +69,7 @@ gpu-data:
 
 # A wheel built from this checkout, installed into a fresh venv outside the repo, runs the
 # default method on the bundled sample (the models travel inside the wheel). CI runs this.
-wheel-check: $(BIN)/cade
+wheel-check: $(RUNTIME)
 	set -e; work=$$(mktemp -d); \
 	$(BIN)/python -m pip wheel . --no-deps --quiet -w $$work/dist; \
 	$(PYTHON) -m venv $$work/venv; \

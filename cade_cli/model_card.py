@@ -133,6 +133,22 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 
 
+def describe_model(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> dict:
+    """What a run records of the network it used: ``name``, ``card`` (its path), ``sha256``
+    of the card file, and each variant's ``levels``, ``file`` and ``sha256`` as the card pins
+    them (the runtime checks each variant file against it when it loads one).
+
+    Raises:
+        CadeError: the card is missing or malformed (:func:`read_card`).
+    """
+    from cade_cli.io.checksum import file_sha256
+
+    path = card_path(model, folder)
+    card = read_card(model, folder)
+    return {"name": card.name, "card": str(path), "sha256": file_sha256(path),
+            "variants": [{"levels": v.levels, "file": v.path.name, "sha256": v.sha256} for v in card.variants]}
+
+
 def write_card(path: Path, *, name: str, divisor: int, trained_levels: int, variants: list[dict], **fields) -> dict:
     """Write a card (``variants``: dicts with ``levels``, ``file``, ``sha256``); returns it."""
     card = {"format": CARD_FORMAT, "name": name, "divisor": divisor, "trained_levels": trained_levels,

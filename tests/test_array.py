@@ -446,3 +446,23 @@ def test_msir_rig_and_parallax_beat_the_affine_alone(shared_data, tmp_path, caps
     plane, fused = score_cubes([read_array_cube(tmp_path / "plane.tif"), read_array_cube(tmp_path / "fused.tif")])
     gains = [after.gradient_correlation - before.gradient_correlation for before, after in zip(plane, fused)]
     assert min(gains) > 0 and np.mean(gains) > 0.01, gains
+
+
+def test_array_score_refuses_cubes_of_two_scenes_sizes_or_band_sets(rng):
+    """Cubes are compared only when they register one capture: same size, same cameras, and
+    (nearly) the same reference band; otherwise one line saying what differs."""
+    from cade_cli.rigs.array_cube import ArrayCube
+
+    def cube(reference, cameras=("c0", "c1")):
+        bands = tuple(reference.copy() for _ in cameras)
+        return ArrayCube(reference, bands, tuple(np.ones(reference.shape, bool) for _ in cameras), "ref", cameras,
+                         ("b",) * (len(cameras) + 1), {})
+
+    scene, other = smooth_texture(rng, (40, 60)), smooth_texture(rng, (40, 60))
+    assert len(score_cubes([cube(scene), cube(scene + 0.01 * rng.random(scene.shape).astype(np.float32))])) == 2
+    with pytest.raises(CadeError, match=r"b.tif and a.tif have different reference bands \(correlation"):
+        score_cubes([cube(scene), cube(other)], names=["a.tif", "b.tif"])
+    with pytest.raises(CadeError, match=r"cube 2 and cube 1 differ in size \(50x40 vs 60x40\)"):
+        score_cubes([cube(scene), cube(scene[:, :50].copy())])
+    with pytest.raises(CadeError, match=r"hold other bands \(2: c0 vs 3: c0, c1\)"):
+        score_cubes([cube(scene), cube(scene, cameras=("c0",))])

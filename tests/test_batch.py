@@ -490,3 +490,16 @@ def test_stale_temporaries_of_a_pair_go_nested_ones_included_and_no_other_file(t
 
     assert remove_stale_temporaries([OnePair()]) == 2
     assert not outer.exists() and not inner.exists() and neighbour.exists()
+
+
+def test_png_batch_refuses_a_range_it_cannot_hold_before_any_pair(cameras, capsys):
+    """--format png holds 0 <= d < 256: a range reaching past it is refused before any pair runs,
+    naming a pair's output (not a temporary file) and the fix; a range that fits runs."""
+    patterns = ["--left", cameras / "cam0" / "*.png", "--right", cameras / "cam1" / "*.png"]
+    for bounds in (["--max-disp", "300"], ["--min-disp", "-2", "--max-disp", "16"]):
+        code, _, stderr = run_cade(["batch", *patterns, "-o", cameras / "out", "--format", "png", "-m", "census-sgm",
+                                    *bounds], capsys)
+        assert code != 0 and "16-bit PNG" in stderr and "0000.png" in stderr and ".tmp-" not in stderr
+        assert not list((cameras / "out").glob("*.png"))  # nothing written (a missing folder globs empty)
+    code, stdout, stderr = run_cade(["batch", *patterns, "-o", cameras / "out", "--format", "png", *FAST], capsys)
+    assert code == 0 and "3 done" in stdout, stderr

@@ -255,3 +255,58 @@ def test_several_models_score_in_one_run_as_method_colon_model(folder_dataset, t
         cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(folder_dataset), "--methods", "cade-network",
                   "--model", f"fast,{folder / 'fast.json'}"])
     assert exit_info.value.code != 0
+
+
+class RefusingNone(Oracle):
+    """The oracle, taking only ``preprocess="cade"`` as the CADE network does."""
+
+    def resolve_preprocess(self, value):
+        if value == "none":
+            raise CadeError("method refusing takes --preprocess cade (or auto), not none")
+        return "cade" if value == "auto" else value
+
+
+def test_what_does_not_apply_is_left_out_and_a_run_of_nothing_is_an_error(folder_dataset):
+    """`cade` + `none`: no row of dashes, one reason kept in the config; only such combinations:
+    an error saying why, before any scene runs."""
+    matchers = {"oracle": Oracle(), "refusing": RefusingNone()}
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["oracle", "refusing"], matchers=matchers,
+                        protocols=["cs"], preprocess=["none", "cade"])
+    assert run.config["not_applicable"] == {"refusing + none": "method refusing takes --preprocess cade (or auto), "
+                                                                "not none"}
+    report = markdown(run)
+    assert "| refusing + cade |" in report and "refusing + none" not in report and "| oracle + none |" in report
+    assert "Left out, as they do not apply: method refusing takes --preprocess cade" in report
+    refusing = RefusingNone()
+    with pytest.raises(CadeError, match=r"nothing to score: method refusing takes --preprocess cade"):
+        run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["refusing"],
+                      matchers={"refusing": refusing}, protocols=["cs"], preprocess=["none"])
+    assert not refusing.calls
+
+
+def test_cli_scoring_nothing_is_an_error_and_left_out_combinations_a_note(folder_dataset, tmp_path, capsys):
+    out_json = tmp_path / "r.json"
+    args = ["benchmark", "--dataset", "folder", "--data-dir", str(folder_dataset), "--protocol", "native"]
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([*args, "--methods", "cade", "--preprocess", "none", "--json", str(out_json)])
+    captured = capsys.readouterr()
+    assert exit_info.value.code != 0 and not out_json.exists() and not captured.out
+    assert "nothing to score: method cade takes --preprocess cade" in captured.err
+    assert len(captured.err.strip().splitlines()) == 1
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main([*args, "--methods", "sgbm,cade-network", "--preprocess", "none,cade", "--scenes", "first"])
+    captured = capsys.readouterr()
+    assert exit_info.value.code == 0
+    assert "note: left out, as they do not apply: method cade-network takes --preprocess cade" in captured.err
+    assert "cade-network + cade" in captured.out and "cade-network + none" not in captured.out
+
+
+def test_progress_counts_every_matcher_run(folder_dataset, oracle):
+    """on_start gets the number of matcher runs and on_run is called that many times, in-process
+    as each task is matched, or per scene from worker processes."""
+    for jobs in (1, 2):
+        started, runs = [], []
+        run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["sgbm"], protocols=["cs", "rgb"],
+                      preprocess=["none", "cade"], jobs=jobs, on_start=started.append, on_run=runs.append)
+        assert started == [2 * (6 + 3) * 2] and len(runs) == started[0]  # scenes x tasks x preprocessing
+        assert runs[0] == ("first R>G: sgbm + none" if jobs == 1 else "first done")

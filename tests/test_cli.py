@@ -134,7 +134,7 @@ BAD_INPUTS = {
         lambda d, l, r: [write_png16(d / "a.png", np.zeros((4, 40))), write_png16(d / "b.png", np.zeros((4, 40)))],
         "smaller than"),
     "band out of range": (lambda d, l, r: [l, r, "--left-band", 3], "out of range"),
-    "max-disp zero": (lambda d, l, r: [l, r, "--max-disp", 0], "--max-disp"),
+    "max-disp below min-disp": (lambda d, l, r: [l, r, "--max-disp", -1], "--max-disp -1 is below --min-disp 0"),
     "max-disp too wide": (lambda d, l, r: [l, r, "--max-disp", 112], "does not fit"),
     "unknown method": (lambda d, l, r: [l, r, "--method", "magic"], "unknown method"),
     "unknown preprocess": (lambda d, l, r: [l, r, "--preprocess", "magic"], "unknown preprocess"),
@@ -281,3 +281,68 @@ def test_model_option_runs_another_exported_network(pair_files, tmp_path, capsys
     code, _, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "c.pfm", "--method", "sgbm",
                                 "--model", folder / "my-model.json"], capsys)
     assert code != 0 and "has no network" in stderr and not (tmp_path / "c.pfm").exists()
+
+
+def shifted_texture_files(tmp_path, rng, shift: int, width: int = 160) -> tuple[Path, Path]:
+    """A seeded texture as LEFT and RIGHT(x) = LEFT(x + shift): a pair of known, constant
+    disparity ``shift`` (I_left(x) = I_right(x - d); negative: seen behind the pair's plane)."""
+    from synthetic import smooth_texture
+
+    texture = smooth_texture(rng, (64, width + 2 * abs(shift) + 20))
+    start = abs(shift) + 10
+    left = write_png16(tmp_path / "l.png", texture[:, start:start + width])
+    right = write_png16(tmp_path / "r.png", texture[:, start + shift:start + shift + width])
+    return left, right
+
+
+def test_png_output_refuses_a_range_beyond_it_before_matching(tmp_path, rng, capsys, monkeypatch):
+    """A 16-bit PNG holds 0 <= d < 256: the default range of a wide image (a quarter of 1100 px)
+    and a negative --min-disp are refused before any matching, in one line naming the user's
+    path (never a temporary file) and the fix."""
+    import cade_cli.scale.tiling
+
+    def no_matching(*args, **kwargs):
+        raise AssertionError("matched before refusing the output")
+
+    monkeypatch.setattr(cade_cli.scale.tiling, "estimate_disparity_tiled", no_matching)
+    left, right = shifted_texture_files(tmp_path, rng, 10, width=1100)
+    out = tmp_path / "d.png"
+    for extra, fix in (([], "--max-disp below 256"), (["--min-disp", -4, "--max-disp", 20], "--min-disp of 0")):
+        code, _, stderr = run_cade(["disparity", left, right, "-o", out, "-m", "census-sgm", *extra], capsys)
+        errors = [line for line in stderr.splitlines() if not line.startswith("note:")]
+        assert code != 0 and len(errors) == 1, stderr
+        assert str(out) in errors[0] and fix in errors[0] and ".pfm, .tif or .npy" in errors[0]
+        assert ".tmp-" not in stderr and not out.exists()
+
+
+def test_range_entirely_below_zero_and_auto_for_register(tmp_path, rng, capsys):
+    """--min-disp -30 --max-disp 0 finds a disparity of -12 (disparity and register), and register
+    takes --max-disp / --min-disp auto like disparity does."""
+    left, right = shifted_texture_files(tmp_path, rng, -12)
+    out = tmp_path / "d.tif"
+    code, stdout, stderr = run_cade(["disparity", left, right, "-o", out, "-m", "census-sgm", "--min-disp", -30,
+                                     "--max-disp", 0], capsys)
+    assert code == 0, stderr
+    assert np.median(read_disparity(out)[8:-8, 8:-30]) == pytest.approx(-12, abs=0.25)
+    registered = tmp_path / "reg.tif"
+    code, stdout, stderr = run_cade(["register", right, left, "-o", registered, "-m", "census-sgm", "--min-disp",
+                                     "auto", "--max-disp", 0], capsys)
+    assert code == 0, stderr
+    assert "note: --min-disp auto: searching [" in stderr and ", 0] px" in stderr
+    bands = load_image(registered)
+    inner = (slice(8, -8), slice(8, -30))
+    assert np.abs(bands[..., 1] - bands[..., 0])[inner].mean() < 0.02  # the moving band lands on the reference
+    code, _, stderr = run_cade(["register", right, left, "-o", registered, "-m", "census-sgm", "--max-disp", "ten"],
+                               capsys)
+    assert code != 0 and "'auto'" in stderr and "valid integer" not in stderr
+
+
+def test_step_bar_counts_stages_and_the_tiles_added_to_them():
+    from cade_cli.cli.options import StepBar
+
+    with StepBar(3, "checking the pair") as bar:
+        bar.advance("matching")
+        bar.advance("matching 5 tiles", steps=0, more=4)
+        bar.advance()
+        task = bar.progress.tasks[0]
+        assert (task.completed, task.total, task.description) == (2, 7, "matching 5 tiles")

@@ -67,10 +67,26 @@ def test_png_refuses_values_outside_range_before_writing(tmp_path: Path, bad: fl
     path = tmp_path / "d.png"
     path.write_bytes(b"old")
     disparity = np.array([[1.0, np.nan], [bad, 2.0]], dtype=np.float32)
-    with pytest.raises(CadeError, match=r"16-bit PNG.*\.pfm or \.tif"):
+    with pytest.raises(CadeError, match=r"16-bit PNG.*\.pfm, \.tif or \.npy"):
         write_disparity(path, disparity)
     assert path.read_bytes() == b"old"
     assert _only_file(tmp_path) == ["d.png"]
+
+
+def test_messages_name_the_output_not_its_staged_temporary(tmp_path: Path) -> None:
+    """A command writes through a hidden stand-in (atomic_outputs): what goes wrong names the user's file."""
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.disparity import check_disparity_range
+
+    path = tmp_path / "d.png"
+    with pytest.raises(CadeError) as error, atomic_outputs([path]) as staged:
+        write_disparity(staged[path], np.array([[300.0]], np.float32))
+    assert str(path) in str(error.value) and ".tmp-" not in str(error.value)
+    with pytest.raises(CadeError, match=r"search range is \[0, 256\].*--max-disp below 256") as error:
+        check_disparity_range(tmp_path / ".d.tmp-0123456789abcdef.png", 0, 256)
+    assert str(path) in str(error.value) and ".tmp-" not in str(error.value)
+    check_disparity_range(path, 0, 255)  # fits
+    check_disparity_range(tmp_path / "d.pfm", -80, 900)  # any range fits a float format
 
 
 def test_all_nan_png(tmp_path: Path) -> None:
@@ -340,3 +356,18 @@ def test_flyingthings3d_gt(shared_data: Path) -> None:
         left, _ = read_band(frame)
         right, _ = read_band(frame.parent.parent / "right" / frame.name)
         assert _warp_error(left, right, disparity) < 0.8 * _warp_error(left, right, np.flipud(disparity))
+
+
+def test_picture_writers_name_the_output_not_its_staged_temporary(tmp_path: Path) -> None:
+    """The visualization and the rectified images are written through hidden stand-ins too:
+    their refusals name the file the user asked for."""
+    from cade_cli.rigs.outputs import write_rectified_image
+
+    staged = tmp_path / ".vis.tmp-0123456789abcdef.jpg"
+    with pytest.raises(CadeError, match="must be a .png") as error:
+        write_visualization(staged, np.ones((4, 4), np.float32))
+    assert str(tmp_path / "vis.jpg") in str(error.value) and ".tmp-" not in str(error.value)
+    with pytest.raises(CadeError, match="use .png") as error:
+        write_rectified_image(tmp_path / ".left.tmp-0123456789abcdef.bmp", np.ones((4, 4), np.float32))
+    assert str(tmp_path / "left.bmp") in str(error.value) and ".tmp-" not in str(error.value)
+    assert list(tmp_path.iterdir()) == []

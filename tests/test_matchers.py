@@ -7,7 +7,7 @@ import pytest
 
 from cade_cli.errors import CadeError
 from cade_cli.matching import LEARNED_METHODS, MATCHERS, densify, get_matcher
-from synthetic import render_pair
+from synthetic import render_pair, smooth_texture
 
 SCENES = {
     "constant": dict(background=(6.0, 0.0), foreground=None),
@@ -52,6 +52,20 @@ def test_cross_band_pair_with_cade(rng, name):
     assert np.abs(densify(result.disparity, result.valid) - pair.disparity)[pair.reliable].mean() < 0.5
 
 
+@pytest.mark.parametrize("low, high", [(-30, -5), (-30, 0)])
+@pytest.mark.parametrize("name", list(MATCHERS))
+def test_range_entirely_below_zero(rng, name, low, high):
+    """A texture shifted by a known NEGATIVE disparity (right(x) = left(x - d), d = -17) is
+    found over a range that never reaches above zero."""
+    texture = smooth_texture(rng, (64, 200))
+    left, right = texture[:, 30:170].copy(), texture[:, 13:153].copy()
+    result = MATCHERS[name](left, right, min_disp=low, max_disp=high)
+    inner = (slice(8, -8), slice(8, -8 - 17))  # away from the borders and the pixels RIGHT does not see
+    error = np.abs(densify(result.disparity, result.valid) + 17)[inner]
+    assert error.mean() < MEAN_ERROR_BOUND.get(name, 0.1)
+    assert result.valid[inner].mean() > 0.9
+
+
 @pytest.mark.parametrize("name", [name for name in MATCHERS if name not in LEARNED_METHODS])
 def test_identical_images_give_zero_disparity(rng, name):
     # The integer winner is exactly 0 everywhere; the parabola may move it by < 0.5 px
@@ -90,7 +104,7 @@ def test_inputs_are_not_modified(rng):
     [
         ((20, 30), (20, 31), dict(max_disp=5), "differ in size"),
         ((4, 30), (4, 30), dict(max_disp=5), "smaller than"),
-        ((20, 30), (20, 30), dict(max_disp=0), "must be > 0"),
+        ((20, 30), (20, 30), dict(min_disp=-30, max_disp=-2), "does not fit"),
         ((20, 30), (20, 30), dict(max_disp=30), "does not fit"),
         ((20, 30), (20, 30), dict(max_disp=5, min_disp=6), "below min"),
         ((20, 30), (20, 30), dict(max_disp=5, preprocess="magic"), "unknown preprocess"),

@@ -10,6 +10,7 @@ from cade_cli.evaluation.metrics import (
     BAD_THRESHOLDS,
     METRIC_NAMES,
     bad_pixel_rate,
+    d1_rate,
     end_point_error,
     invalid_percentage,
     score,
@@ -110,13 +111,35 @@ def test_densify_with_nothing_valid_gives_zeros():
 def test_score_keys_depend_on_nonocc_and_confidence():
     plain = score(PRED, GT)
     assert list(plain) == [name for name in METRIC_NAMES if "nonocc" not in name and "auc" not in name]
-    assert list(plain) == ["epe_all", "bad1_all", "bad2_all", "bad3_all", "bad5_all", "invalid"]
+    assert list(plain) == ["epe_all", "bad1_all", "bad2_all", "bad3_all", "bad5_all", "d1_all", "invalid"]
     with_nonocc = score(PRED, GT, nonocc=ALL)
     assert list(with_nonocc) == [name for name in METRIC_NAMES if "auc" not in name]
     assert list(score(PRED, GT, nonocc=ALL, confidence=np.ones(PRED.shape))) == list(METRIC_NAMES)
     # the confidence columns come last, so the earlier columns keep their places
     assert METRIC_NAMES[-2:] == ("auc_conf_all", "auc_oracle_all")
-    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS)) + 1 + 2
+    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS) + 1) + 1 + 2
+
+
+def test_d1_needs_both_3_px_and_5_percent_by_hand():
+    # GT (px) and error: outlier when the error is > 3 px and > 5 % of the GT
+    #  10, 4:   > 3 and > 0.5        -> outlier
+    # 100, 4:   > 3 but not > 5      -> fine (though a bad3 pixel)
+    # 100, 6:   > 3 and > 5          -> outlier
+    #  40, 2:   not > 3              -> fine
+    #  20, 3:   exactly 3 is not > 3 -> fine
+    #  50, 3.5: > 3 and > 2.5        -> outlier
+    # unknown:  never scored
+    gt = np.array([[10.0, 100.0, 100.0, 40.0, 20.0, 50.0, NAN]], np.float32)
+    pred = gt + np.array([[4.0, -4.0, 6.0, 2.0, 3.0, -3.5, 0.0]], np.float32)
+    pred[0, -1] = 9.0
+    everything = np.ones(gt.shape, bool)
+    assert d1_rate(pred, gt, everything) == pytest.approx(100 * 3 / 6)
+    assert bad_pixel_rate(pred, gt, everything, threshold=3.0) == pytest.approx(100 * 4 / 6)
+    without_first = everything.copy()
+    without_first[0, 0] = False
+    assert d1_rate(pred, gt, without_first) == pytest.approx(100 * 2 / 5)
+    assert np.isnan(d1_rate(pred, gt, np.zeros(gt.shape, bool)))
+    assert score(pred, gt, nonocc=without_first)["d1_nonocc"] == pytest.approx(40.0)
 
 
 def test_score_values_by_hand():

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cade_cli.errors import CadeError
-from cade_cli.evaluation.loop import NO_ESTIMATE_COLOUR, NO_GT_COLOUR, error_picture, save_maps
+from cade_cli.evaluation.error_maps import NO_ESTIMATE_COLOUR, NO_GT_COLOUR, error_picture, save_maps
 from cade_cli.io.disparity import read_disparity, write_disparity
 from cade_cli.io.match_outputs import colorize_disparity, disparity_picture
 from cade_cli.io.pictures import ColourBar, format_value, parse_value_range, robust_range, with_legend

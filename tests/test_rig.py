@@ -518,3 +518,49 @@ def test_opencv_sample_pairs_calibrate_below_half_a_pixel(shared_data):
     assert found.rig.calibration.rms <= 0.5
     assert len(found.rig.calibration.views) >= 10
     assert found.rig.rectification.baseline == pytest.approx(3.3, abs=0.2)  # in square units
+
+
+def test_png_output_with_a_rig_refuses_a_range_beyond_it_before_matching(rig_scene, tmp_path, capsys, monkeypatch):
+    """A 16-bit PNG holds 0 <= d < 256: a given bound outside it is refused up front, an auto one
+    as soon as it is estimated, before the match; one line naming the user's file."""
+    import cade_cli.rigs.rectification
+
+    def no_matching(*args, **kwargs):
+        raise AssertionError("matched before refusing the output")
+
+    monkeypatch.setattr(cade_cli.rigs.rectification, "estimate_disparity_tiled", no_matching)
+    rig, left, right = rig_scene
+    out = tmp_path / "d.png"
+    for bounds in (["--min-disp", "-3", "--max-disp", "40"], ["--min-disp", "-3", "--max-disp", "auto"]):
+        code, _, stderr = run_cade(["disparity", "--rig", rig, left, right, "-o", out, "-m", "sgbm", *bounds], capsys)
+        errors = [line for line in stderr.splitlines() if line.startswith("cade: error")]
+        assert code != 0 and len(errors) == 1 and str(out) in errors[0] and "--min-disp of 0" in errors[0], stderr
+        assert not out.exists()
+
+
+def test_calibrate_warns_of_millimetres_and_suggests_the_board_it_finds(chessboard_files, tmp_path, capsys):
+    """--square 30 (mm given as metres): a one-line warning; a wrong --board (the squares, 10x7,
+    instead of the 9x6 inner corners): the error names the board searched and the size found."""
+    _, (lefts, _) = chessboard_files
+    folder = lefts[0].parent
+    cameras = ["--camera", f"left:bp400:{folder}/left*.png", "--camera", f"right:bp900:{folder}/right*.png"]
+    code, _, stderr = run_cade(["calibrate", *cameras, "--board", "chessboard:9x6", "--square", 30, "-o",
+                                tmp_path / "mm.json"], capsys)
+    warnings = [line for line in stderr.splitlines() if line.startswith("warning:")]
+    assert code == 0 and len(warnings) == 1 and "--square 30 m is implausible" in warnings[0] and "0.025" in stderr
+    code, _, stderr = run_cade(["calibrate", *cameras, "--board", "chessboard:9x6", "--square", 0.03, "-o",
+                                tmp_path / "m.json"], capsys)
+    assert code == 0 and "warning:" not in stderr
+    code, _, stderr = run_cade(["calibrate", *cameras, "--board", "chessboard:10x7", "--square", 0.03, "-o",
+                                tmp_path / "wrong.json"], capsys)
+    assert code != 0 and len(stderr.strip().splitlines()) == 1, stderr
+    assert f"chessboard:10x7 (inner corners) found in 0 of {len(lefts)} pictures" in stderr
+    assert "try --board chessboard:9x6" in stderr and not (tmp_path / "wrong.json").exists()
+
+
+def test_implausible_scale():
+    from cade_cli.rigs.calibration import implausible_scale
+
+    assert implausible_scale(0.025, 0.12) is None
+    assert "a baseline of 83.18 m" in implausible_scale(0.4, 83.18)
+    assert "--square 25 m" in implausible_scale(25, 83.18)

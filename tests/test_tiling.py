@@ -36,9 +36,12 @@ def test_parse_memory():
 @pytest.mark.parametrize("method", ["census-sgm", "sgbm"])
 def test_tiled_map_equals_the_untiled_one_away_from_seams(pair, method):
     whole = estimate_disparity(pair.left, pair.right, method=method, max_disp=MAX_DISP)
+    progress = []
     tiled, plan = estimate_disparity_tiled(pair.left, pair.right, method=method, max_disp=MAX_DISP,
-                                           memory_limit=2**30, core=96)
+                                           memory_limit=2**30, core=96,
+                                           on_tile=lambda done, total: progress.append((done, total)))
     assert plan.tiled and len(plan.tiles) == 3 * 5
+    assert progress == [(done, 15) for done in range(1, 16)]  # a progress bar moves with every tile
     away = seam_distance(plan, pair.left.shape) >= 16
     both = whole.valid & tiled.valid & pair.reliable
     assert (both & away).sum() > 0.3 * pair.reliable.sum()

@@ -92,7 +92,7 @@ def batch(
 
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import BatchSummary, log_document, run_dask, run_local
+    from cade_cli.scale.batch import BatchSummary, check_output_ranges, log_document, run_dask, run_local
     from cade_cli.scale.batch_job import remove_stale_temporaries
     from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
 
@@ -110,6 +110,7 @@ def batch(
     pairs, log = _pairs_and_log(options, manifest=manifest, left=left, right=right, output_dir=output_dir,
                                 output_format=output_format, log=log)
     check_output(log, suffixes=(".json",), inputs=())
+    check_output_ranges(pairs)  # a 16-bit PNG refuses a range beyond [0, 256) px before any pair runs
     remove_stale_temporaries(pairs)  # left by a run that was killed
     results = [] if force else [skipped_result(pair) for pair in pairs if is_finished(pair)]
     finished = {result.output for result in results}

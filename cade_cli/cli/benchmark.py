@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cade_cli.cli.options import BENCHMARK_METHODS, check_output
+from cade_cli.cli.options import BENCHMARK_METHODS, check_output, print_note
 
 
 def benchmark(
@@ -23,6 +23,9 @@ def benchmark(
     jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes.")] = 1,
     json_file: Annotated[Optional[Path], typer.Option("--json", help="Write every number as JSON.")] = None,
     report: Annotated[Optional[Path], typer.Option("--report", help="Write a Markdown report.")] = None,
+    html: Annotated[Optional[Path], typer.Option("--html", help="Write an HTML report: the tables, and per scene and "
+                                                 "task the bands, each method's disparity and error pictures "
+                                                 "(one self-contained file).")] = None,
     save_dir: Annotated[Optional[Path], typer.Option("--save-dir", help="Write each disparity (PFM) and error map (PNG) here.")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Network(s) of the learned methods, as for `cade "
                                                  "disparity --model`; several, comma-separated, score each learned "
@@ -37,14 +40,16 @@ def benchmark(
     from rich.table import Table
 
     from cade_cli.errors import CadeError
+    from cade_cli.evaluation.album import TILE_WIDTH
+    from cade_cli.evaluation.html_report import html_report
     from cade_cli.evaluation.loop import run_benchmark
     from cade_cli.evaluation.report import confidence_table, confidence_title, markdown, pixel_sets, table, title
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
-    for path, suffix in ((json_file, ".json"), (report, ".md")):
+    for path, suffixes in ((json_file, (".json",)), (report, (".md",)), (html, (".html", ".htm"))):
         if path is not None:
-            check_output(path, suffixes=(suffix,), inputs=())
+            check_output(path, suffixes=suffixes, inputs=())
     split = lambda text: [item.strip() for item in text.split(",") if item.strip()]  # noqa: E731
     for option, value in (("--methods", methods), ("--protocol", protocol), ("--preprocess", preprocess),
                           ("--scenes", scenes)):
@@ -53,12 +58,9 @@ def benchmark(
     console = Console(stderr=True)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     # Every output is checked before the run and staged during it; all appear at the end, or none.
-    with atomic_outputs([json_file, report], folders=[save_dir]) as staged:
+    with atomic_outputs([json_file, report, html], folders=[save_dir]) as staged:
         with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
-            bar = progress.add_task(f"benchmark {dataset}", total=None)
-
-            def advance(scene: str, records: list) -> None:
-                progress.update(bar, advance=1, description=f"{dataset} {scene} done")
+            bar = progress.add_task(f"benchmark {dataset}", total=None)  # one step per matcher run
 
             learned = [name for name in split(methods) if name in LEARNED_METHODS]
             if model is not None and not learned:
@@ -80,9 +82,13 @@ def benchmark(
             run = run_benchmark(
                 dataset=dataset, data_dir=data_dir, methods=chosen, protocols=split(protocol),
                 preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
-                save_dir=None if save_dir is None else staged[save_dir], on_scene_done=advance, matchers=matchers,
+                save_dir=None if save_dir is None else staged[save_dir], matchers=matchers,
+                tile_width=None if html is None else TILE_WIDTH,
                 on_start=lambda total: progress.update(bar, total=total),
+                on_run=lambda done: progress.update(bar, advance=1, description=f"{dataset} {done}"),
             )
+        if run.config["not_applicable"]:
+            print_note(f"left out, as they do not apply: {'; '.join(run.config['not_applicable'].values())}")
         out = Console()
         tables = [(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
         confidence = confidence_table(run)  # how well each matcher's confidence ranks its errors
@@ -100,6 +106,8 @@ def benchmark(
             staged[json_file].write_text(run.to_json())
         if report is not None:
             staged[report].write_text(markdown(run, command=command))
+        if html is not None:
+            staged[html].write_text(html_report(run, command=command), encoding="utf-8")
 
 
 datasets_app = typer.Typer(

@@ -34,19 +34,11 @@ MethodOption = Annotated[
     ),
 ]
 
-MaxDispOption = Annotated[
-    Optional[int],
-    typer.Option("--max-disp", min=1, help="Largest disparity searched, px (default: a quarter of the width)."),
-]
-
-MinDispOption = Annotated[
-    int, typer.Option("--min-disp", help="Smallest disparity searched, px; negative for pairs registered to a plane.")
-]
-
 MaxDispAutoOption = Annotated[
     Optional[str],
-    typer.Option("--max-disp", help="Largest disparity searched, px, or 'auto': estimated from a coarse match of the "
-                 "pair, with a margin (docs/scale.md). Default: a quarter of the width."),
+    typer.Option("--max-disp", help="Largest disparity searched, px (at least --min-disp; 0 or below for a pair seen "
+                 "entirely behind its plane), or 'auto': estimated from a coarse match of the pair, with a margin "
+                 "(docs/scale.md). Default: a quarter of the width."),
 ]
 
 MinDispAutoOption = Annotated[
@@ -153,11 +145,16 @@ def resolve_max_disp(max_disp: int | None, width: int) -> int:
 
 
 def parse_range_options(min_disp: str | int, max_disp: str | int | None) -> tuple[int | str, int | str | None]:
-    """--min-disp and --max-disp as given: whole pixels or 'auto' (:func:`cade_cli.scale.range.parse_bound`)."""
+    """--min-disp and --max-disp as given: whole pixels or 'auto' (:func:`cade_cli.scale.range.parse_bound`);
+    any range with max >= min, below zero included."""
+    from cade_cli.errors import CadeError
     from cade_cli.scale.range import parse_bound
 
-    return (parse_bound(min_disp, option="min-disp"),
-            None if max_disp is None else parse_bound(max_disp, option="max-disp", minimum=1))
+    low = parse_bound(min_disp, option="min-disp")
+    high = None if max_disp is None else parse_bound(max_disp, option="max-disp")
+    if isinstance(low, int) and isinstance(high, int) and high < low:
+        raise CadeError(f"--max-disp {high} is below --min-disp {low}; raise --max-disp or lower --min-disp")
+    return low, high
 
 
 def resolve_range_options(min_disp: int | str, max_disp: int | str | None, left_image, right_image) -> tuple[int, int]:
@@ -204,6 +201,34 @@ def check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, .
     for source in inputs:
         if source.exists() and path.exists() and path.resolve() == source.resolve():
             raise CadeError(f"output {path} is also an input; choose another output name")
+
+
+class StepBar:
+    """A transient progress bar on stderr for one long command, counting its steps (stages, tiles,
+    tasks): what runs now, steps done of all, time elapsed. Shown only when stderr is a terminal."""
+
+    def __init__(self, total: int, description: str) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        console = Console(stderr=True)
+        self.progress = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TimeElapsedColumn(), console=console, transient=True,
+                                 disable=not console.is_terminal)
+        self.task = self.progress.add_task(description, total=total)
+
+    def __enter__(self) -> "StepBar":
+        self.progress.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.progress.stop()
+
+    def advance(self, description: str | None = None, *, steps: int = 1, more: int = 0) -> None:
+        """Count ``steps`` done and ``more`` steps added to the total, then show ``description`` (what runs now)."""
+        task = self.progress.tasks[0]
+        self.progress.update(self.task, advance=steps, total=(task.total or 0) + more,
+                             description=task.description if description is None else description)
 
 
 def print_note(message: str) -> None:

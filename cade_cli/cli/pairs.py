@@ -10,8 +10,8 @@ from typing import Annotated, Optional
 import typer
 
 from cade_cli.cli.options import (
-    DEFAULT_METHOD, MaxDispAutoOption, MaxDispOption, MemoryLimitOption, MethodOption, MinDispAutoOption, MinDispOption,
-    ModelOption, PreprocessOption, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options,
+    DEFAULT_METHOD, MaxDispAutoOption, MemoryLimitOption, MethodOption, MinDispAutoOption, ModelOption,
+    PreprocessOption, StepBar, VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options,
     parse_vis_range, print_note, print_warning, read_pair, report_misalignment, resolve_max_disp, resolve_range_options,
     warn_if_textureless,
 )
@@ -68,10 +68,9 @@ def disparity(
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES
+    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, check_disparity_range
     from cade_cli.io.match_outputs import write_match_outputs
     from cade_cli.matching import densify, get_matcher
-    from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles
 
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
@@ -108,32 +107,49 @@ def disparity(
     left_image, right_image = read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     min_disp, max_disp = resolve_range_options(min_disp, max_disp, left_image, right_image)
-    pair_check = _check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
-    plan = plan_tiles(left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
-                      memory_limit=budget, model=model)
-    if plan.tiled:
-        print_note(plan.describe())
-    result, _ = estimate_disparity_tiled(
-        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
-        model=model, memory_limit=budget, plan=plan,
-    )
-    seconds = time.perf_counter() - started
-    preprocess = get_matcher(method).resolve_preprocess(preprocess)
-    dense = densify(result.disparity, result.valid)
-    warn_if_textureless(left, right, left_image, right_image)
-    if confidence is not None and result.confidence is None:
-        raise CadeError(f"method {method} gives no confidence; drop --confidence")
-    with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
-        roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
-        write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
-                            disparity=result.disparity, valid=result.valid, confidence=result.confidence, fill=fill,
-                            vis_range=colour_range)
+    check_disparity_range(output, min_disp, max_disp)  # before any matching: a 16-bit PNG holds [0, 256) px
+    with StepBar(3, "checking the pair") as bar:  # check, match (or one step per tile), write
+        pair_check = _check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
+        bar.advance("matching")
+        result = _match_pair(bar, left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
+                             preprocess=preprocess, model=model, memory_limit=budget)
+        seconds = time.perf_counter() - started
+        preprocess = get_matcher(method).resolve_preprocess(preprocess)
+        dense = densify(result.disparity, result.valid)
+        warn_if_textureless(left, right, left_image, right_image)
+        if confidence is not None and result.confidence is None:
+            raise CadeError(f"method {method} gives no confidence; drop --confidence")
+        with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
+            roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
+            write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
+                                disparity=result.disparity, valid=result.valid, confidence=result.confidence,
+                                fill=fill, vis_range=colour_range)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
         f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
         f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
     )
+
+
+def _match_pair(bar: StepBar, left_image, right_image, *, method: str, min_disp: int, max_disp: int, preprocess: str,
+                model: str | None, memory_limit: int):
+    """Match a pair (no rig) whole, or as tiles when it does not fit ``memory_limit`` (bytes; the
+    plan announced), advancing ``bar`` one step for the whole pair or one per tile."""
+    from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles
+
+    plan = plan_tiles(left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
+                      memory_limit=memory_limit, model=model)
+    if plan.tiled:
+        print_note(plan.describe())
+        bar.advance(f"matching {len(plan.tiles)} tiles", steps=0, more=len(plan.tiles) - 1)
+    result, _ = estimate_disparity_tiled(
+        left_image, right_image, method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess,
+        model=model, memory_limit=memory_limit, plan=plan,
+        on_tile=lambda done, total: bar.advance(f"matching: tile {done} of {total} done"),
+    )
+    bar.advance("writing", steps=0 if plan.tiled else 1)
+    return result
 
 
 def _check_pair(left_image, right_image, *, min_disp: int, max_disp: int, strict: bool):
@@ -164,6 +180,7 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
 
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.disparity import check_disparity_range
     from cade_cli.matching import get_matcher
     from cade_cli.rigs.outputs import FRAMES
     from cade_cli.rigs.pair import check_rig_pair, match_rig_pair, rig_pair_rectification, write_rig_outputs
@@ -186,9 +203,14 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
     width = rectification.image_size[0]
     if AUTO not in (min_disp, max_disp):
         max_disp = resolve_max_disp(max_disp, width)
-    found, framed = match_rig_pair(rig, left_image, right_image, other=other, frame=frame, fill=fill,
-                                   fix_vertical=fix_vertical, method=method, max_disp=max_disp, min_disp=min_disp,
-                                   preprocess=preprocess, model=model, memory_limit=memory_limit)
+        check_disparity_range(output, min_disp, max_disp)  # before any work: a 16-bit PNG holds [0, 256) px
+    # An auto range is known once estimated on the rectified pair: checked then, still before matching.
+    with StepBar(1, "rectifying and matching the pair"):
+        found, framed = match_rig_pair(
+            rig, left_image, right_image, other=other, frame=frame, fill=fill, fix_vertical=fix_vertical,
+            method=method, max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model,
+            memory_limit=memory_limit,
+            on_range=lambda searched: check_disparity_range(output, searched.minimum, searched.maximum))
     seconds = time.perf_counter() - started
     if found.range_estimate is not None:
         print_note(found.range_estimate.describe(estimated=(min_disp == AUTO, max_disp == AUTO)))
@@ -233,8 +255,8 @@ def register(
                                      "--validity` wrote; only its valid pixels are trusted.")
     ] = None,
     method: MethodOption = DEFAULT_METHOD,
-    max_disp: MaxDispOption = None,
-    min_disp: MinDispOption = 0,
+    max_disp: MaxDispAutoOption = None,
+    min_disp: MinDispAutoOption = "0",
     preprocess: PreprocessOption = "auto",
     model: ModelOption = None,
     fill: Annotated[
@@ -259,6 +281,7 @@ def register(
     from cade_cli.errors import CadeError
 
     inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
+    min_disp, max_disp = parse_range_options(min_disp, max_disp)
     check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
     if vis is not None:
         check_output(vis, suffixes=(".png",), inputs=inputs)
@@ -294,11 +317,10 @@ def register(
                                disparity_valid=trusted, fill=fill, disparity_name=str(disparity_file))
         source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
     else:
-        max_disp = resolve_max_disp(max_disp, reference_image.shape[1])
-        result = register_band(
-            moving_image, reference_image, method=method, max_disp=max_disp, min_disp=min_disp,
-            preprocess=preprocess, fill=fill, model=model,
-        )
+        min_disp, max_disp = resolve_range_options(min_disp, max_disp, reference_image, moving_image)
+        with StepBar(1, "matching and warping"):
+            result = register_band(moving_image, reference_image, method=method, max_disp=max_disp,
+                                   min_disp=min_disp, preprocess=preprocess, fill=fill, model=model)
         from cade_cli.matching import get_matcher
 
         source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"

@@ -47,7 +47,7 @@ def calibrate(
     from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
     from cade_cli.io.images import read_band
     from cade_cli.rigs.boards import draw_detection, parse_board
-    from cade_cli.rigs.calibration import CameraImages, calibrate_rig
+    from cade_cli.rigs.calibration import CameraImages, calibrate_rig, implausible_scale
     from cade_cli.rigs.rig_file import save_rig
 
     check_output(output, suffixes=(".json",), inputs=())
@@ -76,6 +76,9 @@ def calibrate(
                                              left_out=key in found.left_out[name])
                     cv2.imwrite(str(staged[vis] / f"{name}_{key}.png"), picture)
         save_rig(rig, staged[output])
+    warning = implausible_scale(square, max(float(sum(value**2 for value in c.t)) ** 0.5 for c in rig.cameras))
+    if warning is not None:
+        print_warning(warning)
     names = rig.names
     print("view  " + "  ".join(f"{name:>12}" for name in names) + "   (reprojection error, px)")
     for view in rig.calibration.views:
@@ -293,7 +296,7 @@ def array_score(
     from cade_cli.rigs.array_score import score_cubes
 
     loaded = [read_array_cube(path) for path in cubes]
-    scores = score_cubes(loaded, window=window)
+    scores = score_cubes(loaded, window=window, names=[str(path) for path in cubes])
     table = Table(title=f"alignment with {loaded[0].reference_name} (NGC: window {window} px; MI: 64 bins)",
                   title_justify="left")
     for name in ["camera", "band", "scored %", *(f"NGC {p.name}" for p in cubes), *(f"MI {p.name}" for p in cubes)]:

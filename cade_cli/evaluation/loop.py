@@ -24,11 +24,12 @@ import numpy as np
 from cade_cli.allocator import retain_freed_memory
 from cade_cli.data import Dataset, Scene, get_dataset
 from cade_cli.errors import CadeError, lookup
+from cade_cli.evaluation.album import SceneAlbum
 from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
+from cade_cli.evaluation.error_maps import save_maps
 from cade_cli.evaluation.metrics import METRIC_NAMES, score
 from cade_cli.evaluation.protocols import get_protocol, run_protocol
 from cade_cli.evaluation.timing import Timing, use_threads
-from cade_cli.io.atomic import atomic_output
 from cade_cli.matching import MATCHERS, PREPROCESS_CHOICES
 
 T = TypeVar("T")
@@ -75,11 +76,14 @@ class BenchmarkRun:
         config: the resolved options (dataset, scenes, methods, protocols, ...).
         records: in scene, protocol, method, preprocess, degradation, task order.
         scene_shapes: scene name -> (height, width, max_disp) in pixels; not in the JSON.
+        albums: scene name -> its pictures for the HTML report, when the run kept them
+            (``run_benchmark(tile_width=...)``); not in the JSON.
     """
 
     config: dict
     records: list[Record] = field(default_factory=list)
     scene_shapes: dict[str, tuple[int, int, int]] = field(default_factory=dict)
+    albums: dict[str, SceneAlbum] = field(default_factory=dict)
 
     def summary(self, by: Sequence[str] = ("method", "preprocess", "protocol")) -> list[dict]:
         """Mean of every metric and of seconds per group of records, in config order.
@@ -127,6 +131,8 @@ class Plan:
         timing: warm-up, repeats and threads of every matcher call.
         seed: seed of the random draws of a degradation (the same for every band).
         save_dir: where to write each scored map and its error map, or None.
+        tile_width: keep each scene's pictures for the HTML report, at most this many px
+            wide (:class:`~cade_cli.evaluation.album.SceneAlbum`); None keeps none.
     """
 
     dataset: str
@@ -138,15 +144,20 @@ class Plan:
     timing: Timing = Timing()
     seed: int = 0
     save_dir: str | None = None
+    tile_width: int | None = None
 
 
-def evaluate_scene(scene: Scene, plan: Plan) -> list[Record]:
+def evaluate_scene(scene: Scene, plan: Plan, *, album: SceneAlbum | None = None,
+                   on_run: Callable[[str], None] | None = None) -> list[Record]:
     """Run and score every protocol x method x preprocess x degradation of ``plan`` on one scene.
 
     The search range is [0, ``scene.max_disp``] (inclusive). A matcher is called as
     ``matcher(left, right, max_disp=..., min_disp=0, preprocess=...)``; one with a
     ``prepare`` method taking the same arguments has it called, untimed, before each
-    call (the speed script's Pandora adapter checks its configuration there).
+    call (the speed script's Pandora adapter checks its configuration there). Each scored
+    map's pictures (and its task's bands) are added to ``album`` when one is given.
+    ``on_run`` is called with a description (scene, task, method + preprocessing) after
+    every matcher run.
     """
     records = []
     runs = [(protocol, method, preprocess, degradation) for protocol in plan.protocols for method in plan.matchers
@@ -154,23 +165,27 @@ def evaluate_scene(scene: Scene, plan: Plan) -> list[Record]:
     for protocol, method, preprocess, degradation in runs:
         matcher, options = plan.matchers[method], dict(max_disp=scene.max_disp, min_disp=0, preprocess=preprocess)
         prepare = getattr(matcher, "prepare", None)
+        done = None if on_run is None else (lambda task: on_run(f"{scene.name} {task}: {method} + {preprocess}"))
         results = run_protocol(protocol, partial(matcher, **options), scene.left, scene.right, tasks=plan.tasks,
                                degrade=partial(degrade, name=degradation, seed=plan.seed), timing=plan.timing,
-                               prepare=None if prepare is None else partial(prepare, **options))
+                               prepare=None if prepare is None else partial(prepare, **options), on_task=done)
         combined = get_protocol(protocol).combine is not None
         for result in (result for result in results if result.scored):
-            records.append(Record(
+            record = Record(
                 dataset=plan.dataset, resolution=scene.resolution, scene=scene.name, protocol=protocol,
                 method=method, preprocess=preprocess, task=result.name, seconds=result.seconds,
                 matcher_runs=len(results) - 1 if combined else 1,  # a combined map costs a run per task
                 scores=score(result.disparity, scene.disparity, nonocc=scene.nonocc, pred_valid=result.valid,
                              confidence=result.confidence),
                 degradation=degradation,
-            ))
+            )
+            records.append(record)
             if plan.save_dir is not None:
                 folder = Path(plan.save_dir) / f"{method}+{preprocess}" / (
                     protocol if degradation == "none" else f"{protocol}+{degradation}")
                 save_maps(folder, f"{scene.name}_{result.name}", result.disparity, scene.disparity)
+            if album is not None:
+                album.add(record, result.disparity, scene)
     return records
 
 
@@ -211,8 +226,10 @@ def _load_and_apply(function: Callable[[Scene], T], reader: Dataset, data_dir: s
     return function(scene)
 
 
-def _scene_unit(scene: Scene, plan: Plan) -> tuple[list[Record], tuple[int, int, int]]:
-    return evaluate_scene(scene, plan), (*scene.disparity.shape, scene.max_disp)
+def _scene_unit(scene: Scene, plan: Plan, on_run: Callable[[str], None] | None = None,
+                ) -> tuple[list[Record], tuple[int, int, int], SceneAlbum | None]:
+    album = None if plan.tile_width is None else SceneAlbum.of(scene, width=plan.tile_width)
+    return evaluate_scene(scene, plan, album=album, on_run=on_run), (*scene.disparity.shape, scene.max_disp), album
 
 
 def run_benchmark(
@@ -229,8 +246,10 @@ def run_benchmark(
     matchers: Mapping[str, Any] = MATCHERS,
     jobs: int = 1,
     save_dir: Path | None = None,
+    tile_width: int | None = None,
     on_scene_done: Callable[[str, list[Record]], None] | None = None,
     on_start: Callable[[int], None] | None = None,
+    on_run: Callable[[str], None] | None = None,
 ) -> BenchmarkRun:
     """Run every protocol x method x preprocess (x degradation) on every scene and score it.
 
@@ -253,12 +272,21 @@ def run_benchmark(
         jobs: worker processes, each running whole scenes (1 = run in this process).
         save_dir: when given, each scored disparity (PFM, filled) and a colourised error
             map (PNG) are written under ``save_dir/<method>+<preprocess>/<protocol>/``.
+        tile_width: when given, the run keeps each scene's pictures (bands, ground truth,
+            each scored map and its errors), at most this many px wide, in ``run.albums``
+            for :func:`cade_cli.evaluation.html_report.html_report`.
         on_scene_done: called with the scene name and its records after each scene.
-        on_start: called once with the number of scenes before the first runs.
+        on_start: called once, before the first, with the number of matcher runs (scene x
+            protocol task x method x preprocessing x degradation).
+        on_run: called with a description after each matcher run (with ``jobs > 1``, for
+            every run of a scene once the scene is done), so that it is called
+            ``on_start``'s number of times: a progress bar that moves during a scene.
 
     Raises:
         CadeError: an unknown dataset, scene, method, protocol, task, degradation or
-            preprocessing value; a task subset that leaves a protocol without tasks.
+            preprocessing value; a task subset that leaves a protocol without tasks; no
+            method that takes any of the preprocessing values (nothing to score). What a
+            matcher does not take is left out and listed in ``config["not_applicable"]``.
     """
     chosen = {method: lookup(matchers, method, kind="method") for method in methods}
     per_method = preprocess if isinstance(preprocess, Mapping) else {method: preprocess for method in methods}
@@ -269,8 +297,9 @@ def run_benchmark(
         preprocess={method: tuple(value for value in per_method.get(method, ()) if takes_preprocess(matcher, value))
                     for method, matcher in chosen.items()},
         tasks=None if tasks is None else tuple(tasks), degradations=tuple(degradations), timing=timing,
-        save_dir=None if save_dir is None else str(save_dir),
+        save_dir=None if save_dir is None else str(save_dir), tile_width=tile_width,
     )
+    not_applicable = _not_applicable(plan, per_method)
     if plan.tasks is not None:
         known = [task.name for name in plan.protocols for task in get_protocol(name).tasks]
         for task in plan.tasks:
@@ -287,75 +316,62 @@ def run_benchmark(
         "dataset": dataset, "data_dir": str(data_dir), "scenes": scene_names, "methods": list(methods),
         "protocols": list(protocols), "preprocess": list(dict.fromkeys(v for vs in per_method.values() for v in vs)),
         "metrics": list(METRIC_NAMES), "tasks": None if tasks is None else list(tasks),
-        "degradations": list(degradations), "timing": asdict(timing),
+        "degradations": list(degradations), "timing": asdict(timing), "models": network_models(chosen),
+        "not_applicable": not_applicable,
     }
     run = BenchmarkRun(config)
+    per_scene = sum(len(get_protocol(name).select(plan.tasks).tasks) for name in plan.protocols) * sum(
+        map(len, plan.preprocess.values())) * len(plan.degradations)  # matcher runs
     if on_start is not None:
-        on_start(len(scene_names))
-    for name, (records, shape) in map_scenes(partial(_scene_unit, plan=plan), reader, Path(data_dir), scene_names,
-                                             jobs=jobs, threads=timing.threads):
+        on_start(per_scene * len(scene_names))
+    live = on_run if jobs == 1 else None  # worker processes report a scene's runs once it is done
+    for name, (records, shape, album) in map_scenes(partial(_scene_unit, plan=plan, on_run=live), reader,
+                                                    Path(data_dir), scene_names, jobs=jobs, threads=timing.threads):
+        for _ in range(per_scene if on_run is not None and live is None else 0):
+            on_run(f"{name} done")
         run.records.extend(records)
         run.scene_shapes[name] = shape
+        if album is not None:
+            run.albums[name] = album
         if on_scene_done is not None:
             on_scene_done(name, records)
     return run
 
 
+def _not_applicable(plan: Plan, asked: Mapping[str, Sequence[str]]) -> dict[str, str]:
+    """``"method + value"`` -> why its matcher does not take that preprocessing, for each value
+    ``asked`` that ``plan`` left out; CadeError when nothing is left to run."""
+    left_out = {f"{method} + {value}": preprocess_refusal(matcher, value) for method, matcher in plan.matchers.items()
+                for value in asked.get(method, ()) if value not in plan.preprocess[method]}
+    if not any(plan.preprocess.values()):
+        raise CadeError(f"nothing to score: {'; '.join(left_out.values()) or 'no preprocessing given'}; "
+                        "give a --preprocess the methods take (auto always applies)")
+    return left_out
+
+
+def network_models(matchers: Mapping[str, Any]) -> dict[str, dict]:
+    """Method -> the network it runs (:func:`cade_cli.model_card.describe_model`: name,
+    card, sha256s), for the matchers that run one (a ``kernel.network.model``)."""
+    from cade_cli.model_card import describe_model
+
+    models = {}
+    for method, matcher in matchers.items():
+        model = getattr(getattr(getattr(matcher, "kernel", None), "network", None), "model", None)
+        if model is not None:
+            models[method] = describe_model(model)
+    return models
+
+
 def takes_preprocess(matcher: Any, value: str) -> bool:
-    """Whether ``matcher`` takes ``preprocess=value``: its ``resolve_preprocess(value)``
-    does not raise :class:`CadeError` (a matcher without that method takes every value)."""
-    resolve = getattr(matcher, "resolve_preprocess", None)
-    if resolve is None:
-        return True
+    """Whether ``matcher`` takes ``preprocess=value`` (:func:`preprocess_refusal` is None)."""
+    return preprocess_refusal(matcher, value) is None
+
+
+def preprocess_refusal(matcher: Any, value: str) -> str | None:
+    """Why ``matcher`` does not take ``preprocess=value``: the :class:`CadeError` of its
+    ``resolve_preprocess(value)``; None when it takes it (or has no such method)."""
     try:
-        resolve(value)
-    except CadeError:
-        return False
-    return True
-
-
-ERROR_SCALE_PX = 8.0
-"""The error at the top of the scale of ``*_error.png`` (px): larger errors share its colour."""
-NO_GT_COLOUR = (80, 0, 0)
-"""BGR of the pixels without ground truth in ``*_error.png``: dark blue (inferno has no blue)."""
-NO_ESTIMATE_COLOUR = (160, 160, 160)
-"""BGR of the pixels with ground truth but no estimate (NaN) in ``*_error.png``: grey."""
-
-
-def error_picture(disparity: np.ndarray, gt: np.ndarray) -> np.ndarray:
-    """|disparity - gt| for looking at: 0 px black to >= :data:`ERROR_SCALE_PX` white-hot
-    (inferno), pixels without GT dark blue, pixels with GT but no estimate grey; a scale
-    bar in px of error and a legend of those colours drawn under it.
-
-    Returns:
-        (H + legend, max(W, 360), 3) uint8, B, G, R (:func:`cade_cli.io.pictures.with_legend`).
-    """
-    import cv2
-
-    from cade_cli.io.pictures import ColourBar, Swatch, colour_map, with_legend
-
-    error = np.abs(np.asarray(disparity, np.float64) - gt)
-    colour = colour_map(error, colormap=cv2.COLORMAP_INFERNO, low=0.0, high=ERROR_SCALE_PX, missing=NO_ESTIMATE_COLOUR)
-    no_gt = ~np.isfinite(gt)
-    colour[no_gt] = NO_GT_COLOUR
-    swatches = [Swatch(NO_GT_COLOUR, "no ground truth")]
-    if (~np.isfinite(disparity) & ~no_gt).any():
-        swatches.append(Swatch(NO_ESTIMATE_COLOUR, "no estimate"))
-    bar = ColourBar(cv2.COLORMAP_INFERNO, 0.0, ERROR_SCALE_PX,
-                    f"|disparity - ground truth|, px of error; {ERROR_SCALE_PX:g} px and more: the end colour")
-    return with_legend(colour, bar=bar, swatches=swatches)
-
-
-def save_maps(folder: Path, stem: str, disparity: np.ndarray, gt: np.ndarray) -> None:
-    """Write ``<stem>.pfm`` (the disparity) and ``<stem>_error.png`` (:func:`error_picture`,
-    with its scale and legend) into ``folder``."""
-    import cv2
-
-    from cade_cli.io.disparity import write_disparity
-
-    folder.mkdir(parents=True, exist_ok=True)
-    stem = stem.replace("/", "_").replace(">", "to")
-    write_disparity(folder / f"{stem}.pfm", disparity)
-    encoded = cv2.imencode(".png", error_picture(disparity, gt))[1]
-    with atomic_output(folder / f"{stem}_error.png") as temporary:  # an OS error becomes a CadeError
-        temporary.write_bytes(encoded.tobytes())
+        getattr(matcher, "resolve_preprocess", lambda value: value)(value)
+    except CadeError as error:
+        return str(error)
+    return None

@@ -36,13 +36,16 @@ def _bad_name(threshold: float) -> str:
     return f"bad{threshold:g}"
 
 
+D1_THRESHOLDS: tuple[float, float] = (3.0, 0.05)
+"""KITTI's D1 outlier: |d - d_gt| > 3 px AND > 5 % of d_gt (:func:`d1_rate`)."""
+
 METRIC_NAMES: tuple[str, ...] = tuple(
     f"{metric}_{region}"
     for region in REGIONS
-    for metric in ("epe", *(_bad_name(t) for t in BAD_THRESHOLDS))
+    for metric in ("epe", *(_bad_name(t) for t in BAD_THRESHOLDS), "d1")
 ) + ("invalid", "auc_conf_all", "auc_oracle_all")
 """Every key :func:`score` can return, in a stable order for table columns:
-``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, epe_nonocc, ..., bad5_nonocc, invalid``,
+``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, d1_all, epe_nonocc, ..., d1_nonocc, invalid``,
 then the sparsification areas of the confidence and of the oracle (px, all pixels with GT;
 only for predictions that carry a confidence)."""
 
@@ -117,6 +120,28 @@ def bad_pixel_rate(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, *, thres
         raise CadeError(f"threshold must be >= 0 px, got {threshold}")
     errors = _scored_errors(pred, gt, valid)
     return float(100.0 * np.count_nonzero(errors > threshold) / errors.size) if errors.size else float("nan")
+
+
+def d1_rate(pred: np.ndarray, gt: np.ndarray, valid: np.ndarray) -> float:
+    """KITTI's D1: percentage of scored pixels whose error is an outlier, i.e. exceeds both
+    3 px and 5 % of the GT disparity (strictly, :data:`D1_THRESHOLDS`), as the KITTI 2015
+    development kit counts them. Unlike ``bad3`` it forgives large near disparities a
+    3 px miss that is small relative to them.
+
+    Args:
+        pred, gt, valid: as for :func:`end_point_error` (scored pixels are
+            ``valid & isfinite(gt)``).
+
+    Returns:
+        percentage in [0, 100]; NaN when no pixel is scored.
+    """
+    pred, gt, valid = np.asarray(pred), np.asarray(gt), np.asarray(valid)
+    errors = _scored_errors(pred, gt, valid)
+    if not errors.size:
+        return float("nan")
+    reference = np.abs(gt[valid & np.isfinite(gt)].astype(np.float64))
+    pixels, relative = D1_THRESHOLDS
+    return float(100.0 * np.count_nonzero((errors > pixels) & (errors > relative * reference)) / errors.size)
 
 
 def invalid_percentage(pred: np.ndarray, pred_valid: np.ndarray) -> float:
@@ -197,7 +222,7 @@ def score(
             pixels with GT, px).
 
     Returns:
-        ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` (%), the same with ``_nonocc``
+        ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` and ``d1_all`` (%, :func:`d1_rate`), the same with ``_nonocc``
         when ``nonocc`` is given, ``invalid``: percentage of *all* image pixels that
         the matcher rejected (:func:`invalid_percentage`), and with ``confidence`` the two
         sparsification areas. Keys follow :data:`METRIC_NAMES` order. Errors are NaN when
@@ -218,6 +243,7 @@ def score(
         results[f"epe_{region}"] = end_point_error(pred, gt, mask)
         for threshold in BAD_THRESHOLDS:
             results[f"{_bad_name(threshold)}_{region}"] = bad_pixel_rate(pred, gt, mask, threshold=threshold)
+        results[f"d1_{region}"] = d1_rate(pred, gt, mask)
     results["invalid"] = invalid_percentage(pred, np.asarray(pred_valid))
     if confidence is not None:
         confidence = np.asarray(confidence)

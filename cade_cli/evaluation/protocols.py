@@ -208,6 +208,7 @@ def run_protocol(
     degrade: Callable[[np.ndarray], np.ndarray] | None = None,
     timing: Timing = Timing(),
     prepare: Callable[[np.ndarray, np.ndarray], None] | None = None,
+    on_task: Callable[[str], None] | None = None,
 ) -> list[TaskResult]:
     """Run the tasks of a protocol on one RGB stereo pair.
 
@@ -221,6 +222,7 @@ def run_protocol(
         degrade: applied to each task's RIGHT band before matching (an imperfect rig).
         timing: warm-up and timed runs of each matcher call (:func:`measure`).
         prepare: ``prepare(left_band, right_band)`` runs untimed before every matcher call.
+        on_task: called with a task's name once it is matched (a progress bar).
 
     Returns:
         One :class:`TaskResult` per task, in the protocol's order; for a ``median``
@@ -248,6 +250,8 @@ def run_protocol(
                             f"shape {left_band.shape}")
         results.append(_densified(task.name, output.disparity, output.valid, statistics.median(seconds),
                                   scored_alone, confidence))
+        if on_task is not None:
+            on_task(task.name)
     if protocol.combine == "median":
         start = time.perf_counter()
         median, valid = median_combine([r.disparity for r in results], [r.valid for r in results])

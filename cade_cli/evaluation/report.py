@@ -1,9 +1,11 @@
 """Tables of a :class:`~cade_cli.evaluation.loop.BenchmarkRun`, shaped like the paper's Table 1.
 
-Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol, one table per
+Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol (and KITTI's D1 for
+the KITTI sets, :data:`D1_DATASETS`), one table per
 pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask), and
 one table of how well each matcher's confidence ranks its errors (:func:`confidence_table`).
-The same rows feed the terminal table and the Markdown report.
+The same rows feed the terminal table, the Markdown report and the HTML report
+(:mod:`~cade_cli.evaluation.html_report`).
 """
 
 from __future__ import annotations
@@ -11,7 +13,16 @@ from __future__ import annotations
 from cade_cli.evaluation.loop import BenchmarkRun
 
 COLUMNS: tuple[tuple[str, str], ...] = (("epe", "EPE"), ("bad3", "BMP3"), ("bad5", "BMP5"))
+D1_COLUMN: tuple[str, str] = ("d1", "D1")
+D1_DATASETS: tuple[str, ...] = ("kitti2012", "kitti2015")
+"""Datasets whose tables add KITTI's own metric, D1 (:func:`cade_cli.evaluation.metrics.d1_rate`);
+every record carries it in the JSON."""
 PIXEL_SETS: tuple[str, ...] = ("all", "nonocc")
+
+
+def columns(run: BenchmarkRun) -> tuple[tuple[str, str], ...]:
+    """(metric, label) of the columns per protocol: :data:`COLUMNS`, then D1 for KITTI."""
+    return COLUMNS + ((D1_COLUMN,) if run.config["dataset"] in D1_DATASETS else ())
 
 
 def pixel_sets(run: BenchmarkRun) -> list[str]:
@@ -21,19 +32,25 @@ def pixel_sets(run: BenchmarkRun) -> list[str]:
 
 
 def table(run: BenchmarkRun, pixels: str) -> tuple[list[str], list[list[str]]]:
-    """(header, rows) for one pixel set; cells are formatted numbers."""
+    """(header, rows) for one pixel set; cells are formatted numbers. A method + preprocessing
+    that was not run (one the matcher does not take, :func:`~cade_cli.evaluation.loop.takes_preprocess`)
+    has no row."""
     protocols = run.config["protocols"]
-    header = ["method"] + [f"{protocol.upper()} {label}" for protocol in protocols for _, label in COLUMNS]
+    shown = columns(run)
+    header = ["method"] + [f"{protocol.upper()} {label}" for protocol in protocols for _, label in shown]
     header.append("s / pair")
     summary = run.summary()
+    ran = {(row["method"], row["preprocess"]) for row in summary}
     rows = []
     for method in run.config["methods"]:
         for preprocess in run.config["preprocess"]:
+            if (method, preprocess) not in ran:
+                continue
             cells, seconds = [f"{method} + {preprocess}"], []
             for protocol in protocols:
                 row = next((r for r in summary if (r["method"], r["preprocess"], r["protocol"])
                             == (method, preprocess, protocol)), None)
-                for metric, _ in COLUMNS:
+                for metric, _ in shown:
                     value = None if row is None else row["scores"].get(f"{metric}_{pixels}")
                     cells.append("—" if value is None else (f"{value:.2f}" if metric == "epe" else f"{value:.1f}"))
                 if row is not None:
@@ -90,8 +107,21 @@ def title(run: BenchmarkRun, pixels: str) -> str:
     resolutions = sorted({record.resolution for record in run.records}) or ["?"]
     scenes = len(run.config["scenes"])
     what = "all pixels with ground truth" if pixels == "all" else "non-occluded pixels with ground truth"
+    d1 = ", D1 % off by > 3 px and > 5 %" if D1_COLUMN in columns(run) else ""
     return (f"{run.config['dataset']} ({', '.join(resolutions)}, {scenes} scenes), {what}: "
-            "EPE px, BMP3/BMP5 % of pixels off by > 3/5 px")
+            f"EPE px, BMP3/BMP5 % of pixels off by > 3/5 px{d1}")
+
+
+def record_table(run: BenchmarkRun) -> tuple[list[str], list[list[str]]]:
+    """(header, rows) of every record: scene, protocol, task, method + preprocess, its
+    EPE, BMP3 (and D1 for KITTI) on both pixel sets, invalid % and seconds."""
+    metrics = [("epe", "EPE"), ("bad3", "BMP3")] + ([D1_COLUMN] if D1_COLUMN in columns(run) else [])
+    keys = [f"{metric}_{pixels}" for pixels in PIXEL_SETS for metric, _ in metrics]
+    header = ["scene", "protocol", "task", "method",
+              *(f"{label} {pixels}" for pixels in PIXEL_SETS for _, label in metrics), "invalid %", "s"]
+    rows = [[r.scene, r.protocol, r.task, f"{r.method} + {r.preprocess}",
+             *(_fmt(r.scores.get(key)) for key in (*keys, "invalid")), f"{r.seconds:.2f}"] for r in run.records]
+    return header, rows
 
 
 def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
@@ -99,6 +129,8 @@ def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
     lines = ["# cade benchmark", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
+    if run.config.get("not_applicable"):
+        lines += [f"Left out, as they do not apply: {'; '.join(run.config['not_applicable'].values())}.", ""]
     for pixels in pixel_sets(run):
         header, rows = table(run, pixels)
         lines += [f"## {title(run, pixels)}", "", markdown_row(header), markdown_row(["---"] + ["---:"] * (len(header) - 1))]
@@ -109,17 +141,9 @@ def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
         lines += [f"## {confidence_title(run)}", "", markdown_row(header),
                   markdown_row(["---"] + ["---:"] * (len(header) - 1))]
         lines += [markdown_row(row) for row in rows] + [""]
-    lines += ["## Per scene and task", "",
-              markdown_row(["scene", "protocol", "task", "method", "EPE all", "BMP3 all", "EPE nonocc", "BMP3 nonocc",
-                       "invalid %", "s"]),
-              markdown_row(["---"] * 4 + ["---:"] * 6)]
-    for r in run.records:
-        s = r.scores
-        lines.append(markdown_row([
-            r.scene, r.protocol, r.task, f"{r.method} + {r.preprocess}",
-            *(_fmt(s.get(key)) for key in ("epe_all", "bad3_all", "epe_nonocc", "bad3_nonocc", "invalid")),
-            f"{r.seconds:.2f}",
-        ]))
+    header, rows = record_table(run)
+    lines += ["## Per scene and task", "", markdown_row(header), markdown_row(["---"] * 4 + ["---:"] * (len(header) - 4))]
+    lines += [markdown_row(row) for row in rows]
     return "\n".join(lines) + "\n"
 
 

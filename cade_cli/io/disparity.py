@@ -23,7 +23,7 @@ import numpy as np
 import tifffile
 
 from cade_cli.errors import CadeError
-from cade_cli.io.atomic import atomic_output
+from cade_cli.io.atomic import atomic_output, intended_path
 from cade_cli.io.images import read_tiff_array
 from cade_cli.io.image_files import (
     MAX_IMAGE_SAMPLES, check_image_size, check_input_file, decode_with_cv2, one_line_message, read_bytes,
@@ -34,6 +34,9 @@ DISPARITY_SUFFIXES: tuple[str, ...] = (".pfm", ".tif", ".tiff", ".png", ".npy")
 
 PNG_DISPARITY_SCALE = 256.0
 """16-bit PNG stores ``round(d * 256)`` (KITTI), so d in [0, 256) at 1/256 px steps."""
+
+PNG_DISPARITY_LIMIT = 65536 / PNG_DISPARITY_SCALE
+"""Disparities a 16-bit PNG holds lie in [0, this) px: 256."""
 
 _PFM_HEADER_LIMIT = 256
 """Bytes searched for the three PFM header lines; longer headers are malformed."""
@@ -71,6 +74,26 @@ def write_disparity(path: Path, disparity: np.ndarray) -> None:
         write_atomically(path, lambda tmp: _write_npy(tmp, values))
     else:
         raise AssertionError(f"unhandled disparity suffix {suffix}")
+
+
+def check_disparity_range(path: Path, low: float, high: float) -> None:
+    """Refuse, before any matching, an output that cannot hold disparities in [low, high] px.
+
+    Only a 16-bit PNG is limited (0 <= d < :data:`PNG_DISPARITY_LIMIT`); a search range
+    that reaches past it could give disparities the PNG cannot store, found only after
+    the match. The other formats hold any float.
+
+    Raises:
+        CadeError: naming ``path``, the range and the fix (another format, or a smaller range).
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".png" or (low >= 0 and high < PNG_DISPARITY_LIMIT):
+        return
+    fix = "a --max-disp below 256" if low >= 0 else "a --min-disp of 0 or more"
+    raise CadeError(
+        f"{intended_path(path)} is a 16-bit PNG, which holds disparities 0 <= d < 256, but the search range is "
+        f"[{low:g}, {high:g}] px; write a .pfm, .tif or .npy file instead, or give {fix}"
+    )
 
 
 def read_disparity(path: Path) -> np.ndarray:
@@ -166,7 +189,7 @@ def write_validity(path: Path, valid: np.ndarray) -> None:
     elif suffix in (".tif", ".tiff"):
         write_atomically(path, lambda tmp: tifffile.imwrite(tmp, mask.astype(np.uint8), photometric="minisblack"))
     else:
-        raise CadeError(f"cannot write validity to {path}: unsupported extension {path.suffix or '(none)'}; "
+        raise CadeError(f"cannot write validity to {intended_path(path)}: unsupported extension {path.suffix or '(none)'}; "
                         f"use one of {', '.join(VALIDITY_SUFFIXES)}")
 
 
@@ -188,7 +211,7 @@ def _disparity_suffix(path: Path) -> str:
     if suffix not in DISPARITY_SUFFIXES:
         shown = path.suffix or "(none)"
         raise CadeError(
-            f"cannot write disparity to {path}: unsupported extension {shown}; use one of {', '.join(DISPARITY_SUFFIXES)}"
+            f"cannot write disparity to {intended_path(path)}: unsupported extension {shown}; use one of {', '.join(DISPARITY_SUFFIXES)}"
         )
     return suffix
 
@@ -210,10 +233,10 @@ def _encode_png_disparity(values: np.ndarray, path: Path) -> np.ndarray:
     valid = ~np.isnan(values)
     if valid.any():
         low, high = float(values[valid].min()), float(values[valid].max())
-        if low < 0 or high >= 256:
+        if low < 0 or high >= PNG_DISPARITY_LIMIT:
             raise CadeError(
-                f"disparities in [{low:.3f}, {high:.3f}] do not fit a 16-bit PNG ({path}), which holds 0 <= d < 256; "
-                "save as .pfm or .tif instead"
+                f"disparities in [{low:.3f}, {high:.3f}] do not fit a 16-bit PNG ({intended_path(path)}), which holds "
+                "0 <= d < 256; save as .pfm, .tif or .npy instead"
             )
     encoded = np.zeros(values.shape, dtype=np.uint16)
     encoded[valid] = np.clip(np.rint(values[valid] * PNG_DISPARITY_SCALE), 1, 65535).astype(np.uint16)

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.io.atomic import intended_path
 from cade_cli.io.disparity import as_disparity, write_atomically, write_disparity, write_png, write_validity
 from cade_cli.io.pictures import (
     INVALID_COLOUR, ROBUST_PERCENTILES, ColourBar, Swatch, colour_map, format_value, robust_range, scaled_picture,
@@ -40,7 +41,8 @@ def colorize_disparity(
     return colour_map(values, colormap=cv2.COLORMAP_TURBO, low=low, high=high)
 
 
-def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float] | None = None) -> np.ndarray:
+def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float] | None = None,
+                      invalid_label: str = "black = invalid / rejected") -> np.ndarray:
     """A disparity map for looking at: Turbo colours, invalid pixels black, and under it
     a colour bar in px with its range and a legend (:func:`cade_cli.io.pictures.with_legend`).
 
@@ -51,6 +53,7 @@ def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float]
             disparity in every picture. Default: the 1st-99th percentile of the valid
             disparities (:func:`cade_cli.io.pictures.robust_range`), so a few outliers do
             not squeeze the rest into one colour.
+        invalid_label: the legend of the black pixels (a ground truth's: no ground truth).
 
     Returns:
         (H + legend, max(W, 360), 3) uint8, B, G, R; the top-left (H, W) block is
@@ -71,7 +74,7 @@ def disparity_picture(disparity: np.ndarray, *, value_range: tuple[float, float]
     if not np.isfinite(values).any():
         caption = "disparity, px: no valid pixel"
     bar = ColourBar(cv2.COLORMAP_TURBO, low, high, caption)
-    return scaled_picture(values, bar, swatches=[Swatch(INVALID_COLOUR, "black = invalid / rejected")])
+    return scaled_picture(values, bar, swatches=[Swatch(INVALID_COLOUR, invalid_label)])
 
 
 def write_visualization(path: Path, disparity: np.ndarray, *, value_range: tuple[float, float] | None = None) -> None:
@@ -82,7 +85,7 @@ def write_visualization(path: Path, disparity: np.ndarray, *, value_range: tuple
     """
     path = Path(path)
     if path.suffix.lower() != ".png":
-        raise CadeError(f"visualization {path} must be a .png file; change its extension to .png")
+        raise CadeError(f"visualization {intended_path(path)} must be a .png file; change its extension to .png")
     picture = disparity_picture(disparity, value_range=value_range)
     write_atomically(path, lambda tmp: write_png(tmp, picture))
 

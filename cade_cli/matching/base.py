@@ -41,9 +41,8 @@ class DisparityRange:
     def check_for_width(self, width: int) -> None:
         """Raise :class:`CadeError` unless the range is usable on images ``width`` wide."""
         if self.maximum < self.minimum:
-            raise CadeError(f"max disparity {self.maximum} is below min disparity {self.minimum}; raise --max-disp")
-        if self.maximum <= 0:
-            raise CadeError(f"max disparity must be > 0, got {self.maximum}")
+            raise CadeError(f"max disparity {self.maximum} is below min disparity {self.minimum}; raise --max-disp "
+                           "or lower --min-disp")
         if self.maximum >= width or -self.minimum >= width:
             raise CadeError(
                 f"disparity range [{self.minimum}, {self.maximum}] does not fit images {width} px wide; "
@@ -107,8 +106,10 @@ class Matcher:
             raise CadeError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS_CHOICES)}")
         resolved = self.preprocessing[0] if preprocess == "auto" else preprocess
         if resolved not in self.preprocessing:
+            why = " (that input transform is part of its network, trained on such bands)" if len(
+                self.preprocessing) == 1 else ""
             raise CadeError(f"method {self.name} takes --preprocess {' or '.join(self.preprocessing)} (or auto), "
-                            f"not {resolved}")
+                            f"not {resolved}{why}")
         return resolved
 
     def __call__(

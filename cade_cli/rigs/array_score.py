@@ -84,20 +84,52 @@ class AlignmentScore:
     scored_share: float
 
 
-def score_cubes(cubes: Sequence[ArrayCube], *, window: int = SCORE_WINDOW) -> list[list[AlignmentScore]]:
+SAME_SCENE_CORRELATION = 0.9
+"""Two cubes of one capture share their reference band (the reference camera's picture): a
+normalised correlation of the two below this means two scenes (or captures), not comparable."""
+
+
+def check_same_capture(cubes: Sequence[ArrayCube], names: Sequence[str]) -> None:
+    """Refuse cubes that are not registrations of one capture of one array: another size,
+    other bands or cameras, or a reference band that differs (:data:`SAME_SCENE_CORRELATION`).
+
+    Raises:
+        CadeError: naming the two cubes (``names``) and what differs, in one line.
+    """
+    first = cubes[0]
+    height, width = first.reference.shape
+    for cube, name in zip(cubes[1:], names[1:]):
+        other = f"{name} and {names[0]}"
+        if cube.reference.shape != first.reference.shape:
+            raise CadeError(f"{other} differ in size ({cube.reference.shape[1]}x{cube.reference.shape[0]} vs "
+                            f"{width}x{height}); score cubes of one array together")
+        if len(cube.bands) != len(first.bands) or cube.cameras != first.cameras:
+            raise CadeError(f"{other} hold other bands ({len(cube.bands)}: {', '.join(cube.cameras)} vs "
+                            f"{len(first.bands)}: {', '.join(first.cameras)}); score cubes of one array together")
+        both = np.isfinite(cube.reference) & np.isfinite(first.reference)
+        correlation = float(np.corrcoef(cube.reference[both], first.reference[both])[0, 1]) if both.any() else 0.0
+        if not correlation >= SAME_SCENE_CORRELATION:  # NaN (a constant band) is refused too
+            raise CadeError(f"{other} have different reference bands (correlation {correlation:.2f}, below "
+                            f"{SAME_SCENE_CORRELATION}): two scenes or captures; score registrations of one capture "
+                            "together")
+
+
+def score_cubes(cubes: Sequence[ArrayCube], *, window: int = SCORE_WINDOW,
+                names: Sequence[str] | None = None) -> list[list[AlignmentScore]]:
     """Score each camera of each cube over the pixels valid in *every* cube, so that
     registrations of one array are compared on the same pixels.
+
+    Args:
+        names: what to call the cubes in messages (their files); default cube 1, cube 2, ...
 
     Returns:
         per cube, per camera: :class:`AlignmentScore`.
 
     Raises:
-        CadeError: cubes of different cameras or sizes.
+        CadeError: cubes that are not of one capture of one array (:func:`check_same_capture`).
     """
     first = cubes[0]
-    for cube in cubes[1:]:
-        if cube.cameras != first.cameras or cube.reference.shape != first.reference.shape:
-            raise CadeError("the cubes hold different cameras or sizes; score cubes of one array together")
+    check_same_capture(cubes, names or [f"cube {k}" for k in range(1, len(cubes) + 1)])
     scores: list[list[AlignmentScore]] = [[] for _ in cubes]
     for i, camera in enumerate(first.cameras):
         common = np.logical_and.reduce([cube.valid[i] for cube in cubes])

@@ -146,6 +146,31 @@ def detect_board(band: np.ndarray, board: Board) -> Detection | None:
     return max(found, key=lambda d: len(d.ids)) if found else None
 
 
+def spec(board: Board) -> str:
+    """``board`` as ``--board`` names it, with what its numbers count: ``chessboard:9x6 (inner corners)``."""
+    counted = "inner corners" if board.kind == "chessboard" else "squares"
+    return f"{board.kind}:{board.columns}x{board.rows} ({counted})"
+
+
+def suggest_board(band: np.ndarray, board: Board) -> Board | None:
+    """A chessboard of a nearby size found in ``band`` where ``board`` is not: transposed, one
+    corner more or fewer along either side, or squares counted instead of inner corners (one
+    fewer each way). OpenCV's fast check only, both polarities: cheap on a picture without
+    such a board. None when none is found (or ``board`` is a ChArUco board)."""
+    if board.kind != "chessboard":
+        return None
+    columns, rows = board.columns, board.rows
+    sizes = [(rows, columns), (columns - 1, rows - 1), (columns + 1, rows + 1), (columns - 1, rows),
+             (columns + 1, rows), (columns, rows - 1), (columns, rows + 1)]
+    image = normalise_for_detection(band)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+    for size in sizes:
+        if min(size) >= 3 and size[0] != size[1] and any(
+                cv2.findChessboardCorners(candidate, size, flags=flags)[0] for candidate in (image, 255 - image)):
+            return Board("chessboard", size[0], size[1], board.square)
+    return None
+
+
 def _detect_chessboard(image: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
     size = (board.columns, board.rows)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE

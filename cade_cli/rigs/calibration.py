@@ -27,13 +27,17 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.io.images import read_band
-from cade_cli.rigs.boards import Board, Detection, MIN_CHARUCO_CORNERS, detect_board
+from cade_cli.rigs.boards import Board, Detection, MIN_CHARUCO_CORNERS, detect_board, spec, suggest_board
 from cade_cli.rigs.rectification import stereo_rectification
 from cade_cli.rigs.rig import Calibration, Camera, Rig
 
 
 MIN_VIEWS = 3
 """The fewest views a camera (and a camera pair) is calibrated from."""
+
+PLAUSIBLE_SQUARE_M = 0.5
+PLAUSIBLE_BASELINE_M = 5.0
+"""Board squares and baselines above these (metres) are warned about: a unit mistake (mm)?"""
 
 OUTLIER_FACTOR = 3.0
 OUTLIER_FLOOR_PX = 0.5
@@ -155,6 +159,8 @@ def calibrate_rig(cameras: Sequence[CameraImages], board: Board, *, reference: s
     intrinsics: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     for name in names:
         keys = [key for key, _ in views if detections[name].get(key) is not None]
+        if len(keys) < MIN_VIEWS:  # the board is mostly not found: the wrong --board?
+            raise _too_few(f"camera {name}", len(keys), _board_hint(board, name, views, detections, notes))
         K, dist, rms, kept = _calibrate_camera(name, keys, detections[name], board, sizes[name], files_of, notes,
                                                rejected)
         intrinsics[name] = (K, dist, rms)
@@ -210,6 +216,30 @@ def _outliers(errors: dict[str, float]) -> list[str]:
 def _too_few(what: str, count: int, notes: list[str]) -> CadeError:
     hint = "; ".join(notes[-3:]) if notes else "check the board size and the pictures"
     return CadeError(f"{what}: only {count} usable view(s), {MIN_VIEWS} needed ({hint})")
+
+
+def _board_hint(board: Board, name: str, views, detections, notes: list[str]) -> list[str]:
+    """Why camera ``name`` has too few views when its board is mostly not found: its last note,
+    the board searched, and a nearby size found in its first picture without it (:func:`suggest_board`)."""
+    pictures = [(key, files[name]) for key, files in views if name in files]
+    missed = [path for key, path in pictures if detections[name].get(key) is None]
+    hint = (f"{spec(board)} found in {len(pictures) - len(missed)} of {len(pictures)} pictures; check that --board "
+            "counts what it should")
+    suggested = suggest_board(read_band(missed[0])[0], board) if missed else None
+    if suggested is not None:
+        hint += f"; {spec(suggested)} is found in {missed[0]}: try --board {spec(suggested).split()[0]}"
+    return [note for note in notes if note.endswith(f"for camera {name}")][-1:] + [hint]
+
+
+def implausible_scale(square: float, baseline: float) -> str | None:
+    """A warning when the square side or the baseline (both metres) look like another unit
+    (above :data:`PLAUSIBLE_SQUARE_M` or :data:`PLAUSIBLE_BASELINE_M`: millimetres given as
+    metres?); None when both are plausible."""
+    if square <= PLAUSIBLE_SQUARE_M and baseline <= PLAUSIBLE_BASELINE_M:
+        return None
+    what = f"--square {square:g} m" if square > PLAUSIBLE_SQUARE_M else f"a baseline of {baseline:.4g} m"
+    return (f"{what} is implausible for a calibration rig: --square takes metres (25 mm is --square 0.025); "
+            "every translation and depth comes out in its unit")
 
 
 def _calibrate_camera(name, keys, detections, board, size, files_of, notes, rejected):

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.io.atomic import intended_path
 from cade_cli.rigs.rectification import RigDisparity, needs_mirroring
 from cade_cli.rigs.rig import Rectification, Rig
 
@@ -102,12 +103,12 @@ def write_rectified_image(path: Path, image: np.ndarray) -> None:
         tifffile.imwrite(path, values, photometric="rgb" if values.ndim == 3 else "minisblack")
         return
     if path.suffix.lower() != ".png":
-        raise CadeError(f"cannot write {path}: use .png (8 bits) or .tif (float32)")
+        raise CadeError(f"cannot write {intended_path(path)}: use .png (8 bits) or .tif (float32)")
     scaled = np.round(np.clip(np.nan_to_num(values), 0, 1) * 255).astype(np.uint8)
     if scaled.ndim == 3:
         scaled = cv2.cvtColor(scaled, cv2.COLOR_RGB2BGR)
     if not cv2.imwrite(str(path), scaled):
-        raise CadeError(f"could not write {path}")
+        raise CadeError(f"could not write {intended_path(path)}; check free space and permissions")
 
 
 def epipolar_picture(left: np.ndarray, right: np.ndarray, *, spacing: int = 32) -> np.ndarray:

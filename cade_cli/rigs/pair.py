@@ -12,12 +12,13 @@ outputs asked for. The commands only add their own messages around these.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.matching import DisparityRange
 from cade_cli.rigs.outputs import FramedDisparity, in_frame
 from cade_cli.rigs.rectification import RigDisparity, check_image_size, rectification_of, rig_disparity
 from cade_cli.rigs.rig import Rectification, Rig
@@ -50,7 +51,7 @@ def check_rig_pair(rig: Rig, rectification: Rectification, left: np.ndarray, rig
 def match_rig_pair(
     rig: Rig, left: np.ndarray, right: np.ndarray, *, other: str | None, frame: str, fill: str, fix_vertical: bool,
     method: str, min_disp: int | str, max_disp: int | str | None, preprocess: str, model: str | None,
-    memory_limit: int | None,
+    memory_limit: int | None, on_range: Callable[[DisparityRange], None] | None = None,
 ) -> tuple[RigDisparity, FramedDisparity]:
     """Rectify, self-check and match a rig's pair, and put the result in ``frame``.
 
@@ -63,6 +64,7 @@ def match_rig_pair(
             :func:`~cade_cli.rigs.rectification.rig_disparity`: the range in rectified px, a
             bound ``auto`` estimated on the rectified pair; the pair matched whole when it
             fits ``memory_limit`` (bytes; None: the default), else as tiles.
+        on_range: called with the resolved range before matching (it may refuse it).
 
     Returns:
         (the match in the rectified frame, with the self-check's finding, the range
@@ -70,7 +72,7 @@ def match_rig_pair(
     """
     found = rig_disparity(rig, left, right, other=other, fix_vertical=fix_vertical, method=method,
                           max_disp=max_disp, min_disp=min_disp, preprocess=preprocess, model=model,
-                          memory_limit=memory_limit)
+                          memory_limit=memory_limit, on_range=on_range)
     return found, in_frame(found, rig, frame=frame, fill=fill == "row")
 
 

@@ -15,6 +15,7 @@ images) is :mod:`cade_cli.rigs.outputs`.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -206,7 +207,7 @@ def rig_disparity(
     rig: Rig, left: np.ndarray, right: np.ndarray, *, other: str | None = None, fix_vertical: bool = False,
     self_check: bool = True, method: str = DEFAULT_METHOD, max_disp: int | str | None = None,
     min_disp: int | str = 0, preprocess: str = DEFAULT_PREPROCESS, model: str | None = None,
-    memory_limit: int | None = None,
+    memory_limit: int | None = None, on_range: Callable[[DisparityRange], None] | None = None,
 ) -> RigDisparity:
     """Rectify a rig's pair, check it, and match it as ``cade disparity`` matches a pair:
     the range resolved (:func:`cade_cli.scale.range.resolve_range`), then
@@ -232,6 +233,8 @@ def rig_disparity(
             (the image width while it is ``auto`` or None, since it runs first).
         memory_limit: budget for the whole process, bytes, as ``--memory-limit``; None:
             :func:`cade_cli.scale.memory.default_memory_limit`.
+        on_range: called with the resolved range before matching (it may refuse it: an
+            output that cannot hold it).
 
     Raises:
         CadeError: a bad rig or image size (:func:`rectify_pair`), too few self-check
@@ -254,6 +257,8 @@ def rig_disparity(
     matched_left, matched_right = (np.ascontiguousarray(band[:, ::-1]) if flip else band
                                    for band in (left_rect, right_rect))
     searched, estimate = resolve_range(matched_left, matched_right, min_disp=min_disp, max_disp=max_disp)
+    if on_range is not None:
+        on_range(searched)
     budget = default_memory_limit() if memory_limit is None else memory_limit
     result, plan = estimate_disparity_tiled(matched_left, matched_right, method=method, min_disp=searched.minimum,
                                             max_disp=searched.maximum, preprocess=preprocess, model=model,

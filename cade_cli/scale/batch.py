@@ -111,6 +111,25 @@ def planned_pair_memory(pair: Pair) -> tuple[int, int, int]:
     return width, height, pair_memory_bytes(options.method, width, height, top - bottom + 1)
 
 
+def check_output_ranges(pairs: Sequence[Pair]) -> None:
+    """Refuse, before any pair runs, a pair whose disparity output cannot hold the range it
+    searches (a 16-bit PNG: :func:`~cade_cli.io.disparity.check_disparity_range`), from its
+    given bounds or the default one; a bound ``auto`` is checked by the job once estimated."""
+    from cade_cli.io.disparity import check_disparity_range
+    from cade_cli.stereo import default_max_disparity
+
+    for pair in pairs:
+        options = pair.options
+        if pair.output.suffix.lower() != ".png":
+            continue
+        top = options.max_disp if isinstance(options.max_disp, int) else 0
+        if options.max_disp is None:
+            width = (_rectified_size(options.rig, options.camera) if options.rig is not None
+                     else image_size(pair.left))[0]
+            top = default_max_disparity(width)
+        check_disparity_range(pair.output, options.min_disp if isinstance(options.min_disp, int) else 0, top)
+
+
 @functools.lru_cache(maxsize=4)
 def _rectified_size(rig: str, camera: str | None) -> tuple[int, int]:
     from cade_cli.rigs.pair import rig_pair_rectification

@@ -15,6 +15,7 @@ from pathlib import Path
 from cade_cli import __version__
 from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs, intended_path
+from cade_cli.io.disparity import check_disparity_range
 from cade_cli.io.checksum import file_sha256
 from cade_cli.scale.batch_pairs import Pair, PairOptions, PairResult, expected_record, peak_rss_mb, worker_name
 from cade_cli.scale.range import AUTO, RangeEstimate
@@ -116,6 +117,7 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
         raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
                         f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
     searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
+    check_disparity_range(pair.output, searched.minimum, searched.maximum)  # an auto bound, before matching
     checked = check_pair(left, right, min_disp=searched.minimum, max_disp=searched.maximum)
     if checked.problems and options.strict:
         raise CadeError(f"{checked.describe()} (--strict)")
@@ -169,7 +171,8 @@ def _match_with_rig(pair: Pair, left, right, notes: list[str]) -> _Matched:
     found, framed = match_rig_pair(rig, left, right, other=other, frame=options.frame, fill=options.fill,
                                    fix_vertical=options.fix_vertical, method=options.method, min_disp=options.min_disp,
                                    max_disp=options.max_disp, preprocess=options.preprocess, model=options.model,
-                                   memory_limit=budget)
+                                   memory_limit=budget, on_range=lambda searched: check_disparity_range(
+                                       pair.output, searched.minimum, searched.maximum))
     if found.plan.tiled:
         notes.append(_tiled_note(budget))
     check = found.misalignment

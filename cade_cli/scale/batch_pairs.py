@@ -307,8 +307,7 @@ def pairs_from_manifest(manifest: Path, *, options: PairOptions) -> list[Pair]:
         try:
             for name in ("min_disp", "max_disp"):
                 if cells.get(name):
-                    overrides[name] = parse_bound(cells[name], option=name.replace("_", "-"),
-                                                  minimum=1 if name == "max_disp" else None)
+                    overrides[name] = parse_bound(cells[name], option=name.replace("_", "-"))
             for name in ("left_band", "right_band"):
                 if cells.get(name):
                     if not cells[name].isdigit():

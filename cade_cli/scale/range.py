@@ -141,7 +141,7 @@ def coarse_match(
     low = -reach if min_disp is None else math.floor(min_disp / scale)
     high = reach if max_disp is None else math.ceil(max_disp / scale)
     low, high = max(low, -(coarse_size[0] - 1)), min(high, coarse_size[0] - 1)
-    if high <= low or high <= 0:
+    if high <= low:
         raise CadeError(f"--min-disp {min_disp} and --max-disp {max_disp} leave no range to search; "
                         "give a smaller --min-disp or a larger --max-disp")
     # The colour-agnostic transform absorbs any gain and offset between the bands but not a
@@ -201,7 +201,10 @@ def estimate_range(
     margin = range_margin(found_low, found_high, factor)
     minimum = min_disp if min_disp is not None else max(-(width - 1), math.floor(found_low - margin))
     maximum = max_disp if max_disp is not None else min(width - 1, math.ceil(found_high + margin))
-    maximum = max(maximum, minimum + 1, 1)
+    if max_disp is None:  # an estimated bound gives way to a given one; the range may lie below zero
+        maximum = max(maximum, minimum + 1)
+    elif min_disp is None:
+        minimum = min(minimum, maximum - 1)
     chosen = DisparityRange(int(minimum), int(maximum))
     chosen.check_for_width(width)
     return RangeEstimate(chosen, factor, (found_low, found_high), margin, valid_share)

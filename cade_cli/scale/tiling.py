@@ -47,6 +47,7 @@ into, so the untiled map's rows depend on the image's height, which no window re
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import NoReturn
 
@@ -311,6 +312,7 @@ def estimate_disparity_tiled(
     core: int | None = None,
     seed: bool = True,
     plan: TilePlan | None = None,
+    on_tile: Callable[[int, int], None] | None = None,
 ) -> tuple[DisparityResult, TilePlan]:
     """:func:`~cade_cli.stereo.estimate_disparity` within a memory budget: whole when the
     pair fits, else tile by tile (:func:`plan_tiles`) and stitched.
@@ -322,6 +324,8 @@ def estimate_disparity_tiled(
         memory_limit: budget for the whole process, bytes.
         collar, core, seed: see :func:`plan_tiles`.
         plan: a plan made already by :func:`plan_tiles` for this pair (skips planning).
+        on_tile: called as ``on_tile(done, total)`` after each tile of a tiled match (a
+            progress bar); not called when the pair is matched whole.
 
     Returns:
         (the unfilled :class:`~cade_cli.matching.DisparityResult` of the whole left view,
@@ -338,7 +342,7 @@ def estimate_disparity_tiled(
     disparity = np.full(left.shape, np.nan, np.float32)
     valid = np.zeros(left.shape, bool)
     confidence: np.ndarray | None = np.zeros(left.shape, np.float32)
-    for tile in plan.tiles:
+    for done, tile in enumerate(plan.tiles, start=1):
         (top, bottom), (first, last) = tile.window_rows, tile.window_columns
         found = estimate_disparity(left[top:bottom, first:last], right[top:bottom, first:last], method=method,
                                    min_disp=tile.range.minimum, max_disp=tile.range.maximum,
@@ -351,6 +355,8 @@ def estimate_disparity_tiled(
             confidence[core] = found.confidence[inside]
         else:
             confidence = None
+        if on_tile is not None:
+            on_tile(done, len(plan.tiles))
     return DisparityResult(disparity, valid, confidence), plan
 
 
