@@ -320,31 +320,10 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     torch.manual_seed(config.seed)
     net = network_of(asdict(config)).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
-    start, elapsed_before, cpu_before = 0, 0.0, 0.0
-    if resume and checkpoint_path.exists():
-        state = torch.load(checkpoint_path, map_location=config.device, weights_only=False)
-        net.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        start, elapsed_before, cpu_before = state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
-        torch.set_rng_state(state["torch_rng"])
-    elif config.init:
-        initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
-        if config.init_partial:
-            net.load_state_dict(transferable(initial, net), strict=False)
-        else:
-            net.load_state_dict(adapt_state_dict(initial, net))
+    start, elapsed_before, cpu_before = restore(net, optimizer, config, checkpoint_path if resume else None)
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
-    log_path = out / "log.csv"
-    new_log = not log_path.exists() or start == 0
-    with_cpu = new_log  # logs begun before the cpu_s column keep their columns
-    if not new_log:  # a run killed between checkpoints logged steps it will now redo: drop them
-        rows = log_path.read_text().splitlines(keepends=True)
-        log_path.write_text("".join(rows[:1] + [row for row in rows[1:] if int(row.split(",", 1)[0]) <= start]))
-        with_cpu = "cpu_s" in rows[0]
-    log = log_path.open("w" if new_log else "a", newline="")
+    log, with_cpu = open_log(out / "log.csv", start)
     writer = csv.writer(log)
-    if new_log:
-        writer.writerow(["step", "elapsed_s", "lr", "loss", "train_epe", "set", "val_epe", "val_bad3", "cpu_s"])
     validation = validation_sets(config)
     print(f"CadeNet: {parameter_count(net)} parameters; steps {start}..{config.steps}", flush=True)
 
@@ -359,24 +338,10 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     for step, batch in enumerate(batches, start=start):
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step)
-        batch = {key: value.to(config.device, non_blocking=True) for key, value in batch.items()}
-        with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
-            out_ = net(batch["left"], batch["right"])
-            out_ = {key: value.float() for key, value in out_.items()}
-            loss, mask = loss_terms(out_, batch["disparity"], config.levels, config.coarse_weight)
-            if config.feature_consistency > 0:
-                loss = loss + config.feature_consistency * feature_consistency(net, out_["features"], batch["left_alt"])
-        optimizer.zero_grad(set_to_none=True)
         done = step + 1
-        usable = bool(mask.any()) and bool(torch.isfinite(loss))
-        if usable:
-            loss.backward()
-            usable = bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)))
-        if usable:
-            optimizer.step()
-            running_loss += loss.item()
-            running_epe += (out_["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
-            seen += 1
+        measured = optimise(net, optimizer, batch, config, device_type)
+        if measured is not None:
+            running_loss, running_epe, seen = running_loss + measured[0], running_epe + measured[1], seen + 1
         else:  # a batch without ground truth, or an overflow (bf16): one NaN step would poison the run
             print(f"step {done}: loss or gradient not finite (or no ground truth); step skipped", flush=True)
         elapsed = elapsed_before + time.time() - started
@@ -407,6 +372,57 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             break
     log.close()
     return checkpoint_path
+
+
+def restore(net: torch.nn.Module, optimizer, config: TrainConfig, checkpoint: Path | None) -> tuple[int, float, float]:
+    """Load the run's ``checkpoint`` when there is one (net, optimizer, random state), else
+    ``config.init``'s weights when given; returns (step, wall seconds, CPU seconds) so far."""
+    if checkpoint is not None and checkpoint.exists():
+        state = torch.load(checkpoint, map_location=config.device, weights_only=False)
+        net.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        torch.set_rng_state(state["torch_rng"])
+        return state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
+    if config.init:
+        initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
+        if config.init_partial:
+            net.load_state_dict(transferable(initial, net), strict=False)
+        else:
+            net.load_state_dict(adapt_state_dict(initial, net))
+    return 0, 0.0, 0.0
+
+
+def open_log(path: Path, start: int):
+    """The run's log, open for appending from step ``start`` (a new one with its header at step 0),
+    and whether its rows carry the ``cpu_s`` column (logs begun before it keep their columns)."""
+    if path.exists() and start > 0:  # a run killed between checkpoints logged steps it will now redo: drop them
+        rows = path.read_text().splitlines(keepends=True)
+        path.write_text("".join(rows[:1] + [row for row in rows[1:] if int(row.split(",", 1)[0]) <= start]))
+        return path.open("a", newline=""), "cpu_s" in rows[0]
+    log = path.open("w", newline="")
+    csv.writer(log).writerow(["step", "elapsed_s", "lr", "loss", "train_epe", "set", "val_epe", "val_bad3", "cpu_s"])
+    return log, True
+
+
+def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
+             device_type: str) -> tuple[float, float] | None:
+    """One optimiser step on ``batch``: (loss, training EPE px), or None when the step was
+    skipped (no ground truth in the batch, or a loss or gradient that is not finite)."""
+    batch = {key: value.to(config.device, non_blocking=True) for key, value in batch.items()}
+    with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
+        out = net(batch["left"], batch["right"])
+        out = {key: value.float() for key, value in out.items()}
+        loss, mask = loss_terms(out, batch["disparity"], config.levels, config.coarse_weight)
+        if config.feature_consistency > 0:
+            loss = loss + config.feature_consistency * feature_consistency(net, out["features"], batch["left_alt"])
+    optimizer.zero_grad(set_to_none=True)
+    if not (bool(mask.any()) and bool(torch.isfinite(loss))):
+        return None
+    loss.backward()
+    if not bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0))):
+        return None
+    optimizer.step()
+    return loss.item(), (out["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
 
 
 def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, config: TrainConfig,
