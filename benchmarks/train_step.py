@@ -16,7 +16,9 @@ from dataclasses import asdict, replace
 
 import torch
 
-from cade_cli.train.fit import GeneratedBatches, TrainConfig, loss_terms
+from cade_cli.train.batches import GeneratedBatches
+from cade_cli.train.config import TrainConfig
+from cade_cli.train.fit import loss_terms
 from cade_cli.train.model import parameter_count
 from cade_cli.train.networks import network_of
 

@@ -11,10 +11,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
-from cade_cli.train.fit import TrainConfig, predict, train  # noqa: E402
+from cade_cli.train.fit import train  # noqa: E402
 from cade_cli.train.net2d import DIVISOR2D, CadeNet2D, HalfRefinement, normalised_correlation  # noqa: E402
 from cade_cli.train.networks import network_of  # noqa: E402
+from cade_cli.train.validation import predict
 
 
 def _with_batch_statistics(net: torch.nn.Module) -> torch.nn.Module:
@@ -128,7 +130,7 @@ def test_validation_predicts_with_the_networks_own_divisor():
 
 
 def test_the_data_levers_are_drawn_only_when_on_and_feed_the_consistency_loss(tmp_path: Path):
-    from cade_cli.train.fit import GeneratedBatches
+    from cade_cli.train.batches import GeneratedBatches
 
     base = TrainConfig(out="x", textures=[], batch=2, height=48, width=64, levels=32, architecture="cadenet2d",
                        width2d=16)
@@ -202,7 +204,7 @@ def test_a_card_without_runtime_refinement_returns_the_networks_map(tmp_path: Pa
 
 
 def test_a_crop_schedule_grows_the_crops_at_its_steps_and_refuses_malformed_entries():
-    from cade_cli.train.fit import GeneratedBatches, crop_at, parse_crop_schedule
+    from cade_cli.train.batches import GeneratedBatches, crop_at, parse_crop_schedule
 
     config = TrainConfig(out="x", textures=[], batch=1, height=64, width=96, levels=32,
                          crop_schedule="0:64x64,3:64x128")

@@ -11,8 +11,10 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from cade_cli.train.batches import GeneratedBatches
+from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
-from cade_cli.train.fit import GeneratedBatches, TrainConfig, learning_rate, train  # noqa: E402
+from cade_cli.train.fit import learning_rate, train  # noqa: E402
 from cade_cli.train.model import (  # noqa: E402
     LEGACY_DESIGN,
     CadeNet,
@@ -215,7 +217,7 @@ class _EchoNet(torch.nn.Module):
 
 
 def test_validation_pads_like_the_runtime_and_pools_the_benchmark_metrics():
-    from cade_cli.train.fit import evaluate, predict
+    from cade_cli.train.validation import evaluate, predict
 
     net = _EchoNet()
     left = np.arange(5 * 9, dtype=np.float32).reshape(5, 9)  # not a multiple of the divisor
@@ -332,15 +334,15 @@ def test_a_census_net_starts_as_the_checkpoint_it_was_widened_from(tmp_path: Pat
 def test_a_batch_without_ground_truth_is_skipped_not_learned(tmp_path: Path, monkeypatch, capsys):
     """A batch whose loss is not finite (no pixel with ground truth in range, or a bf16
     overflow) is skipped: one such step would otherwise leave NaN weights for the rest of the run."""
-    import cade_cli.train.fit as fit
+    import cade_cli.train.batches as batches
 
-    real_pair = fit.training_pair
+    real_pair = batches.training_pair
 
     def no_ground_truth(rng, pool, real, config, *size):
         pair = real_pair(rng, pool, real, config, *size)
         return dataclasses.replace(pair, disparity=np.full_like(pair.disparity, np.nan))
 
-    monkeypatch.setattr(fit, "training_pair", no_ground_truth)
+    monkeypatch.setattr(batches, "training_pair", no_ground_truth)
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=32, width=64, levels=16,
                          workers=0, validate_every=100, lr=1.0, warmup=0)
     state = torch.load(train(config), weights_only=False)["model"]

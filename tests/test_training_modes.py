@@ -95,8 +95,9 @@ def test_a_card_says_how_its_network_takes_its_bands(tmp_path: Path, monkeypatch
                                                     ("cade", "cade-floor", "cade-floor")])
 def test_a_run_in_a_mode_exports_a_card_with_that_modes_input(tmp_path: Path, mode, chosen, expected):
     pytest.importorskip("torch")
+    from cade_cli.train.config import TrainConfig
     from cade_cli.train.export import export_checkpoint
-    from cade_cli.train.fit import TrainConfig, train
+    from cade_cli.train.fit import train
 
     config = TrainConfig(out=str(tmp_path / mode), textures=[], steps=1, batch=1, height=32, width=64, levels=16,
                          workers=0, validate_every=1, training_mode=mode, network_input=chosen)

@@ -93,7 +93,8 @@ def fit(
     """Train (or resume) a run."""
     if real_share > 0 and real_dir is None:
         raise typer.BadParameter("--real-share needs --real-dir", param_hint="--real-share")
-    from cade_cli.train.fit import TrainConfig, train
+    from cade_cli.train.config import TrainConfig
+    from cade_cli.train.fit import train
     from cade_cli.train.pairs import TRAINING_MODES
 
     from cade_cli.train.model import AGGREGATIONS

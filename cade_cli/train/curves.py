@@ -17,7 +17,7 @@ from pathlib import Path
 
 SETS = ("middlebury05-cs", "middlebury14Q-cs", "middlebury05-rgb", "middlebury14Q-rgb")
 """Validation sets drawn (those some run has): the network alone, CS tasks R>B and B>R and
-same-band tasks R>R, G>G, B>B of both Middlebury sets (:func:`~cade_cli.train.fit.validation_sets`)."""
+same-band tasks R>R, G>G, B>B of both Middlebury sets (:func:`~cade_cli.train.validation.validation_sets`)."""
 
 
 @dataclass
@@ -52,8 +52,9 @@ def fill_final_points(curve: RunCurve, folder: Path, data_dir: Path | None) -> N
     checkpoint = folder / "last.pt"
     if not missing or data_dir is None or not checkpoint.is_file():
         return
+    from cade_cli.train.config import TrainConfig
     from cade_cli.train.export import load_checkpoint
-    from cade_cli.train.fit import TrainConfig, evaluate, validation_sets
+    from cade_cli.train.validation import evaluate, validation_sets
 
     net, state = load_checkpoint(checkpoint)
     config = TrainConfig(out=str(folder), textures=[], data_dir=str(data_dir), levels=net.levels)

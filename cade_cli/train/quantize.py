@@ -29,7 +29,7 @@ class GeneratedCalibration:
     """onnxruntime's CalibrationDataReader over ``count`` generated pairs."""
 
     def __init__(self, card: dict, textures: list[str], *, count: int = 16, size: tuple[int, int] = (192, 320)):
-        from cade_cli.train.fit import generated_pair
+        from cade_cli.train.batches import generated_pair
 
         pool = TexturePool([Path(folder) for folder in textures])
         config = card["train_config"]

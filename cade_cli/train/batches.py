@@ -1,0 +1,108 @@
+"""Training batches: each step's generated (or real) pairs, drawn from
+``np.random.default_rng([seed, step])``, cropped as the run's crop schedule says, and
+collated into tensors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from cade_cli.train.config import TrainConfig
+from cade_cli.train.pairs import training_pair as mode_pair
+from cade_cli.train.real import RealScenes
+from cade_cli.train.scenes import Misalignment, TexturePool, erased, render_scene
+
+
+class GeneratedBatches(torch.utils.data.Dataset):
+    """Item ``step`` is the training batch for that step (deterministic in seed and step)."""
+
+    def __init__(self, config: TrainConfig):
+        self.config = config
+        self.pool: TexturePool | None = None
+        self.real: RealScenes | None = None
+
+    def __len__(self) -> int:
+        return self.config.steps
+
+    def __getitem__(self, step: int) -> dict[str, torch.Tensor]:
+        config = self.config
+        if self.pool is None:
+            self.pool = TexturePool([Path(folder) for folder in config.textures])
+            self.real = RealScenes(Path(config.real_dir)) if config.real_share > 0 else None
+        rng = np.random.default_rng([config.seed, step])
+        height, width = crop_at(config, step)
+        return collate([training_pair(rng, self.pool, self.real, config, height, width) for _ in range(config.batch)])
+
+
+def crop_at(config: TrainConfig, step: int) -> tuple[int, int]:
+    """The training crop (height, width) at ``step``: the last entry of ``config.crop_schedule``
+    that has begun, else ``config.height`` x ``config.width``."""
+    size = (config.height, config.width)
+    for begin, height, width in parse_crop_schedule(config.crop_schedule):
+        if step >= begin:
+            size = (height, width)
+    return size
+
+
+def parse_crop_schedule(text: str | None) -> list[tuple[int, int, int]]:
+    """``"0:160x288,5000:192x320"`` -> [(0, 160, 288), (5000, 192, 320)]: from each step on,
+    that crop (sides multiples of 16; steps increasing)."""
+    if not text:
+        return []
+    entries = []
+    for item in text.split(","):
+        try:
+            begin, size = item.split(":")
+            height, width = (int(side) for side in size.lower().split("x"))
+            entries.append((int(begin), height, width))
+        except ValueError:
+            raise ValueError(f"crop schedule entry {item!r} is not STEP:HEIGHTxWIDTH") from None
+        if height % 16 or width % 16 or height < 64 or width < 64:
+            raise ValueError(f"crop {height}x{width} must have sides of at least 64 that are multiples of 16")
+    if [begin for begin, _, _ in entries] != sorted({begin for begin, _, _ in entries}):
+        raise ValueError(f"crop schedule steps must increase: {text!r}")
+    return entries
+
+
+def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig,
+                  height: int | None = None, width: int | None = None):
+    """One CADE training pair of ``height`` x ``width`` (default: the config's): cut from a
+    real scene with probability ``config.real_share`` (no random draw for that when the
+    share is 0, so earlier runs reproduce), else rendered."""
+    height, width = height or config.height, width or config.width
+    second_left = config.feature_consistency > 0
+    if real is not None and rng.random() < config.real_share:
+        scene = erased(real.draw(rng, height, width, limit=config.levels - 1), rng, config.eraser)
+        return mode_pair(scene, rng, config.training_mode, config.network_input, second_left=second_left)
+    return generated_pair(rng, pool, height, width, config.levels, misaligned=config.misaligned,
+                          mode=config.training_mode, kind=config.network_input, scene_range=config.scene_range,
+                          misaligned_offset=config.misaligned_offset, eraser=config.eraser, second_left=second_left)
+
+
+def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
+                   misaligned: float = 0.0, mode: str = "cade", kind: str | None = None, scene_range: float = 1.0,
+                   misaligned_offset: float = 1.0, eraser: float = 0.0, second_left: bool = False):
+    """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
+    disparities below ``levels - 1`` px (times a per-scene share drawn from
+    [``scene_range``, 1] when that is below 1); a share ``misaligned`` of the pairs has a
+    vertically misaligned right view (by up to ``misaligned_offset`` px), a share
+    ``eraser`` an erased patch (:func:`~cade_cli.train.scenes.erased`)."""
+    limit = levels - 1
+    if scene_range < 1:  # no draw otherwise: earlier runs' scenes unchanged
+        limit *= float(np.exp(rng.uniform(np.log(scene_range), 0.0)))
+    scene = render_scene(rng, height, width, limit=limit, textures=pool,
+                         misalignment=Misalignment(share=misaligned, offset=misaligned_offset))
+    return mode_pair(erased(scene, rng, eraser), rng, mode, kind, second_left=second_left)
+
+
+def collate(pairs) -> dict[str, torch.Tensor]:
+    return {
+        "left": torch.from_numpy(np.stack([p.left for p in pairs])[:, None]),
+        "right": torch.from_numpy(np.stack([p.right for p in pairs])[:, None]),
+        "disparity": torch.from_numpy(np.stack([p.disparity for p in pairs])[:, None]),
+        "nonoccluded": torch.from_numpy(np.stack([p.nonoccluded for p in pairs])[:, None]),
+        **({"left_alt": torch.from_numpy(np.stack([p.left_alt for p in pairs])[:, None])}
+           if pairs[0].left_alt is not None else {}),
+    }
