@@ -275,13 +275,23 @@ def test_what_does_not_apply_is_left_out_and_a_run_of_nothing_is_an_error(folder
     assert run.config["not_applicable"] == {"refusing + none": "method refusing takes --preprocess cade (or auto), "
                                                                 "not none"}
     report = markdown(run)
-    assert "| refusing + cade |" in report and "refusing + none" not in report and "| oracle + none |" in report
-    assert "Left out, as they do not apply: method refusing takes --preprocess cade" in report
+    assert "| refusing + cade |" in report and "| refusing + none |" not in report and "| oracle + none |" in report
+    assert "Left out, as they do not apply: refusing + none: method refusing takes --preprocess cade" in report
     refusing = RefusingNone()
     with pytest.raises(CadeError, match=r"nothing to score: method refusing takes --preprocess cade"):
         run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["refusing"],
                       matchers={"refusing": refusing}, protocols=["cs"], preprocess=["none"])
     assert not refusing.calls
+
+
+def test_combinations_left_out_for_one_reason_are_named_in_one_clause():
+    from cade_cli.evaluation.loop import BenchmarkRun
+    from cade_cli.evaluation.report import left_out
+
+    reason, other = "method cade takes --preprocess cade (or auto), not none", "another reason"
+    run = BenchmarkRun({"not_applicable": {"cade:a + none": reason, "cade:b + none": reason, "x + none": other}})
+    assert left_out(run) == f"cade:a + none, cade:b + none: {reason}; x + none: {other}"
+    assert left_out(BenchmarkRun({"not_applicable": {}})) == ""
 
 
 def test_cli_scoring_nothing_is_an_error_and_left_out_combinations_a_note(folder_dataset, tmp_path, capsys):
@@ -297,7 +307,8 @@ def test_cli_scoring_nothing_is_an_error_and_left_out_combinations_a_note(folder
         cli.main([*args, "--methods", "sgbm,cade-network", "--preprocess", "none,cade", "--scenes", "first"])
     captured = capsys.readouterr()
     assert exit_info.value.code == 0
-    assert "note: left out, as they do not apply: method cade-network takes --preprocess cade" in captured.err
+    assert "note: left out, as they do not apply: cade-network + none: method cade-network takes --preprocess cade" \
+        in captured.err
     assert "cade-network + cade" in captured.out and "cade-network + none" not in captured.out
 
 

@@ -141,3 +141,14 @@ def test_chromium_renders_the_page_with_its_pictures(picture_page, tmp_path):
     assert rows.size > 100  # several hundred rows of pictures, not a stray coloured line
     picture_area = shot[rows.min():rows.max() + 1]
     assert len(np.unique(picture_area.reshape(-1, 3), axis=0)) > 300  # colour ramps, not flat fills
+
+
+def test_the_page_says_what_was_left_out_and_why(folder_dataset):
+    from cade_cli.evaluation.html_report import html_report
+    from cade_cli.evaluation.loop import run_benchmark
+
+    run = run_benchmark(dataset="folder", data_dir=folder_dataset, methods=["sgbm", "cade-network"],
+                        protocols=["native"], preprocess=["none", "cade"], scenes=["first"], tile_width=200)
+    page = html_report(run)
+    assert "<th>left out</th><td>cade-network + none: method cade-network takes --preprocess cade" in page
+    assert "cade-network + cade" in page and "sgbm + none" in page

@@ -43,7 +43,7 @@ def benchmark(
     from cade_cli.evaluation.album import TILE_WIDTH
     from cade_cli.evaluation.html_report import html_report
     from cade_cli.evaluation.loop import run_benchmark
-    from cade_cli.evaluation.report import confidence_table, confidence_title, markdown, pixel_sets, table, title
+    from cade_cli.evaluation.report import confidence_table, confidence_title, left_out, markdown, pixel_sets, table, title
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
@@ -87,8 +87,8 @@ def benchmark(
                 on_start=lambda total: progress.update(bar, total=total),
                 on_run=lambda done: progress.update(bar, advance=1, description=f"{dataset} {done}"),
             )
-        if run.config["not_applicable"]:
-            print_note(f"left out, as they do not apply: {'; '.join(run.config['not_applicable'].values())}")
+        if left_out(run):
+            print_note(f"left out, as they do not apply: {left_out(run)}")
         out = Console()
         tables = [(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
         confidence = confidence_table(run)  # how well each matcher's confidence ranks its errors

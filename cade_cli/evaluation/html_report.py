@@ -19,7 +19,9 @@ from html import escape
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.album import TILE_WIDTH, SceneAlbum, map_key
 from cade_cli.evaluation.loop import BenchmarkRun, Record
-from cade_cli.evaluation.report import confidence_table, confidence_title, pixel_sets, record_table, table, title
+from cade_cli.evaluation.report import (
+    confidence_table, confidence_title, left_out, pixel_sets, record_table, table, title,
+)
 
 STYLE = """
 body { font: 14px/1.4 system-ui, sans-serif; color: #222; margin: 12px 16px; max-width: 1248px; }
@@ -87,6 +89,8 @@ def header(run: BenchmarkRun, *, command: str | None, created: datetime) -> str:
         ("run", "; ".join(f"{name} {escape(', '.join(config[name]))}"
                           for name in ("methods", "protocols", "preprocess"))),
     ]
+    if left_out(run):
+        rows.append(("left out", escape(left_out(run))))
     for method, model in config.get("models", {}).items():
         variants = "<br>".join(
             f"{escape(str(v['file']))} ({v['levels']} levels): <code>{escape(str(v['sha256']))}</code>"

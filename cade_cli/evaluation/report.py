@@ -124,13 +124,22 @@ def record_table(run: BenchmarkRun) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def left_out(run: BenchmarkRun) -> str:
+    """The method + preprocessing pairs the run left out and why, one clause per reason:
+    ``cade:a + none, cade:b + none: method cade takes ...``; empty when none was."""
+    by_reason: dict[str, list[str]] = {}
+    for pair, reason in run.config.get("not_applicable", {}).items():
+        by_reason.setdefault(reason, []).append(pair)
+    return "; ".join(f"{', '.join(pairs)}: {reason}" for reason, pairs in by_reason.items())
+
+
 def markdown(run: BenchmarkRun, *, command: str | None = None) -> str:
     """The full Markdown report: the tables, then per-scene, per-task numbers."""
     lines = ["# cade benchmark", ""]
     if command:
         lines += [f"Command: `{command}`", ""]
-    if run.config.get("not_applicable"):
-        lines += [f"Left out, as they do not apply: {'; '.join(run.config['not_applicable'].values())}.", ""]
+    if left_out(run):
+        lines += [f"Left out, as they do not apply: {left_out(run)}.", ""]
     for pixels in pixel_sets(run):
         header, rows = table(run, pixels)
         lines += [f"## {title(run, pixels)}", "", markdown_row(header), markdown_row(["---"] + ["---:"] * (len(header) - 1))]
