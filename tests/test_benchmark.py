@@ -228,6 +228,44 @@ def test_compare_records_reports_each_changed_score(folder_dataset, oracle, tmp_
     assert compare.main([str(old), str(new), "--new-metrics"]) == 0
 
 
+def test_the_shipping_rule_needs_lower_middlebury_means_and_no_set_worse_by_over_3_percent(tmp_path, capsys):
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "shipping_rule.py"
+    spec = importlib.util.spec_from_file_location("shipping_rule", script)
+    rule = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rule)
+
+    def runs(scores: dict[str, dict[str, tuple[float, float]]]) -> list[str]:
+        """dataset -> method -> (EPE, BMP3): one JSON per dataset, two CS records per method."""
+        paths = []
+        for dataset, methods in scores.items():
+            records = [{"protocol": "cs", "method": method, "scores": {"epe_all": epe + delta, "bad3_all": bad}}
+                       for method, (epe, bad) in methods.items() for delta in (-0.1, 0.1)]
+            path = tmp_path / f"{dataset}.json"
+            path.write_text(json.dumps({"config": {"dataset": dataset}, "records": records}))
+            paths.append(str(path))
+        return paths
+
+    args = ["--shipped", "old", "--candidate", "new"]
+    better = {"middlebury05": {"old": (2.0, 20.0), "new": (1.9, 19.0)},
+              "middlebury14": {"old": (5.0, 25.0), "new": (4.0, 26.0)}}
+    assert rule.main(args + runs(better)) == 1  # lower means, but Middlebury 2014's BMP3 is 4 % worse
+    assert "sets worse by more than 3%: middlebury14 cs" in capsys.readouterr().out
+    mixed = {"middlebury05": {"old": (2.0, 20.0), "new": (1.9, 19.0)},
+             "middlebury14": {"old": (5.0, 25.0), "new": (4.0, 25.5)},
+             "kitti2015": {"old": (2.0, 20.0), "new": (2.1, 20.0)}}
+    assert rule.main(args + runs(mixed)) == 1  # KITTI 2015 EPE +5 %
+    assert "sets worse by more than 3%: kitti2015 cs" in capsys.readouterr().out
+    mixed["kitti2015"]["new"] = (2.05, 20.0)  # +2.5 %: within the tolerance
+    assert rule.main(args + runs(mixed)) == 0
+    assert "passes" in capsys.readouterr().out
+    higher_bad = {"middlebury05": {"old": (2.0, 20.0), "new": (1.9, 20.4)},
+                  "middlebury14": {"old": (5.0, 25.0), "new": (4.9, 25.5)}}
+    assert rule.main(args + runs(higher_bad)) == 1  # mean BMP3 higher, though each set within 3 %
+    assert "not both lower" in capsys.readouterr().out
+
+
 def test_several_models_score_in_one_run_as_method_colon_model(folder_dataset, tmp_path, capsys):
     """--model a,b: each learned method runs once per model (rows METHOD:MODEL); a copy of
     the shipped card under another name scores exactly as the shipped one."""

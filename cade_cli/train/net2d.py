@@ -39,7 +39,7 @@ over groups, in [-1, 1], times this. The U-Net's output is added to it and start
 so an untrained network is already a soft winner-takes-all matcher of its features, and the
 U-Net learns the aggregation as a residual: the 2D net has no built-in sliding along
 disparity, and without this prior it spent its first 700 steps predicting about the
-range's middle (train EPE 33 px at step 500; models/README.md, "Session 17")."""
+range's middle (train EPE 33 px at step 500; models/README.md, "Sessions 17–19")."""
 
 
 class Residual2D(nn.Module):

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The Accuracy III training campaign: one run, resumed by every session (models/README.md,
-# "Session 18"). CadeNet2D with the per-disparity aggregation (--slice-channels 4), from scratch,
+# "Sessions 17–19"). CadeNet2D with the per-disparity aggregation (--slice-channels 4), from scratch,
 # seed 29. Run from the repository root; it continues from runs/campaign-2d/last.pt.
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/campaign-2d --architecture cadenet2d \
   --levels 192 --textures ../shared/data/textures --data-dir ../shared/data \
