@@ -466,3 +466,21 @@ def test_array_score_refuses_cubes_of_two_scenes_sizes_or_band_sets(rng):
         score_cubes([cube(scene), cube(scene[:, :50].copy())])
     with pytest.raises(CadeError, match=r"hold other bands \(2: c0 vs 3: c0, c1\)"):
         score_cubes([cube(scene), cube(scene, cameras=("c0",))])
+
+
+def test_register_array_estimates_each_cameras_range_with_auto(array_files, rendered, tmp_path, capsys):
+    """--min-disp/--max-disp auto: each camera searches the range a coarse match of its own pair
+    finds, and the fused map is as good as with the range given (-2, 3 and 6 px per unit baseline)."""
+    rig, paths = array_files
+    code, out, err = _run(["register-array", rig, *paths, "-o", tmp_path / "auto.tif", "--method", "census-sgm",
+                           "--min-disp", "auto", "--max-disp", "auto", "--disparity", tmp_path / "auto.pfm"], capsys)
+    assert code == 0, err
+    assert "over [auto, auto] px per" in out
+    from cade_cli.io.disparity import read_disparity
+
+    epe, bad1 = _errors(np.nan_to_num(read_disparity(tmp_path / "auto.pfm"), nan=0.0), rendered)
+    assert epe < 0.35 and bad1 < 0.05, (epe, bad1)
+    assert read_array_cube(tmp_path / "auto.tif").description["search"] == ["auto", "auto"]
+    code, _, err = _run(["register-array", rig, *paths, "-o", tmp_path / "x.tif", "--max-disp", "far"], capsys)
+    assert code == 1 and "--max-disp 'far' is not a number of px per unit baseline or 'auto'" in err
+    assert not (tmp_path / "x.tif").exists()

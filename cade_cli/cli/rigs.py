@@ -161,10 +161,12 @@ def register_array(
                                          "registered band, then one validity band per camera; band names in the "
                                          "description.")],
     method: MethodOption = DEFAULT_METHOD,
-    min_disp: Annotated[float, typer.Option("--min-disp", help="Smallest disparity searched, px per unit baseline "
-                                            "(the rig's shortest); negative: behind the rig's plane.")] = -16.0,
-    max_disp: Annotated[float, typer.Option("--max-disp", help="Largest disparity searched, px per unit baseline; "
-                                            "each camera searches the range times its baseline ratio.")] = 16.0,
+    min_disp: Annotated[str, typer.Option("--min-disp", metavar="<float|auto>", help="Smallest disparity searched, "
+                                          "px per unit baseline (the rig's shortest); negative: behind the rig's "
+                                          "plane; auto: each camera's own, from a coarse match.")] = "-16",
+    max_disp: Annotated[str, typer.Option("--max-disp", metavar="<float|auto>", help="Largest disparity searched, px "
+                                          "per unit baseline; each camera searches the range times its baseline "
+                                          "ratio; auto: each camera's own, from a coarse match.")] = "16",
     match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Match at this fraction of "
                                                "the resolution (faster; the disparity is brought back to full "
                                                "size).")] = 1.0,
@@ -194,8 +196,10 @@ def register_array(
     from cade_cli.rigs.array_cube import array_cube, false_colour, write_array_cube
     from cade_cli.rigs.array_geometry import array_geometry
     from cade_cli.rigs.rig_file import load_rig
+    from cade_cli.scale.range import AUTO
 
     check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))
+    search = (_array_bound(min_disp, "min-disp"), _array_bound(max_disp, "max-disp"))
     if disparity_file is not None:
         if plane_only:
             raise CadeError("--disparity needs the parallax estimated; drop it or --plane-only")
@@ -222,7 +226,7 @@ def register_array(
         task = "matching cameras" if not plane_only else "warping cameras"
         bar = progress.add_task(task, total=len(geometry.cameras))
         registration = register_cameras(
-            bands, geometry, parallax=not plane_only, method=method, search=(min_disp, max_disp), scale=match_scale,
+            bands, geometry, parallax=not plane_only, method=method, search=search, scale=match_scale,
             preprocess=preprocess, model=model,
             on_camera=lambda name: progress.update(bar, advance=1, description=f"{name} done"),
         )
@@ -230,7 +234,7 @@ def register_array(
     details = {"rig": str(rig_file), "images": [str(paths[c.name]) for c in order], "plane_only": plane_only}
     if not plane_only:
         details.update(method=method, preprocess=get_matcher(method).resolve_preprocess(preprocess),
-                       search=[min_disp, max_disp], match_scale=match_scale)
+                       search=[AUTO if bound is None else bound for bound in search], match_scale=match_scale)
     cube = array_cube(registration, details=details)
     with atomic_outputs([output, disparity_file, vis]) as staged:  # all outputs appear together, or none
         write_array_cube(staged[output], cube)
@@ -244,13 +248,27 @@ def register_array(
 
             cv2.imwrite(str(staged[vis]), false_colour(cube, channels))
     width, height = geometry.size
+    searched = ", ".join(AUTO if bound is None else f"{bound:g}" for bound in search)
     source = "the rig's plane only" if plane_only else (
-        f"{details['method']}+{details['preprocess']} over [{min_disp:g}, {max_disp:g}] px per "
+        f"{details['method']}+{details['preprocess']} over [{searched}] px per "
         f"{1000 * geometry.unit:g} mm of baseline at scale {match_scale:g}")
     seen = ", ".join(f"{c.name} {100 * v.mean():.0f}%" for c, v in zip(geometry.cameras, registration.valid))
     print(f"{output}: {width}x{height}, {len(order)} cameras onto {geometry.reference.name}, {source}; valid: {seen}; "
           f"{seconds:.1f} s")
 
+
+
+def _array_bound(text: str, option: str) -> float | None:
+    """A bound of register-array's range: px per unit baseline, or None for ``auto``."""
+    from cade_cli.errors import CadeError
+    from cade_cli.scale.range import AUTO
+
+    if text.strip().lower() == AUTO:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise CadeError(f"--{option} {text!r} is not a number of px per unit baseline or 'auto'") from None
 
 
 def _false_colour_cameras(rig, vis_bands: str | None) -> list[str]:

@@ -44,6 +44,7 @@ import numpy as np
 from cade_cli.errors import CadeError
 from cade_cli.matching.disparity import densify, visible_in_right_view
 from cade_cli.rigs.array_geometry import ArrayCamera, ArrayGeometry, baseline_frame, resize_masked
+from cade_cli.scale.range import estimate_range
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, estimate_disparity
 
 
@@ -171,7 +172,7 @@ def match_camera(
     camera: ArrayCamera,
     *,
     unit: float,
-    search: tuple[float, float] = DEFAULT_SEARCH,
+    search: tuple[float | None, float | None] = DEFAULT_SEARCH,
     scale: float = 1.0,
     method: str = DEFAULT_METHOD,
     preprocess: str = DEFAULT_PREPROCESS,
@@ -182,8 +183,9 @@ def match_camera(
     Both views (the reference and the camera warped onto the reference plane, where
     ``inside``) are scaled by ``scale``, turned so that the camera's baseline is +x
     (:func:`baseline_frame`) and matched with :func:`~cade_cli.stereo.estimate_disparity`
-    over ``search`` (px per unit baseline, times the baseline ratio: signed). The map is
-    turned back, brought to full size and divided by the baseline ratio.
+    over ``search`` (px per unit baseline, times the baseline ratio: signed; a None bound is
+    estimated from a coarse match of this camera's pair, :func:`~cade_cli.scale.range.estimate_range`).
+    The map is turned back, brought to full size and divided by the baseline ratio.
 
     Returns:
         (H, W) float32, NaN where the matcher rejected the pixel, its estimate lies within
@@ -199,10 +201,15 @@ def match_camera(
     else:
         reference_s, warped_s = reference, warped
     frame = baseline_frame(camera.baseline, reference_s.shape)
-    low = math.floor(search[0] * ratio * scale)
-    high = max(low + 1, math.ceil(search[1] * ratio * scale))
-    result = estimate_disparity(frame.to_frame(reference_s), frame.to_frame(warped_s), method=method,
-                                max_disp=high, min_disp=low, preprocess=preprocess, model=model)
+    left, right = frame.to_frame(reference_s), frame.to_frame(warped_s)
+    low = None if search[0] is None else math.floor(search[0] * ratio * scale)
+    high = None if search[1] is None else math.ceil(search[1] * ratio * scale)
+    if low is None or high is None:  # 'auto': this camera's own range, from a coarse match of its pair
+        estimated = estimate_range(left, right, min_disp=low, max_disp=high).range
+        low, high = estimated.minimum, estimated.maximum
+    high = max(low + 1, high)
+    result = estimate_disparity(left, right, method=method, max_disp=high, min_disp=low, preprocess=preprocess,
+                                model=model)
     # An estimate at an end of the range is clipped there, not measured (flat sky, a range too small).
     measured = result.valid & (result.disparity > low + BOUND_MARGIN) & (result.disparity < high - BOUND_MARGIN)
     disparity, valid = frame.from_frame(result.disparity, measured, reference_s.shape)
@@ -265,7 +272,7 @@ def register_array(
     *,
     parallax: bool = True,
     method: str = DEFAULT_METHOD,
-    search: tuple[float, float] = DEFAULT_SEARCH,
+    search: tuple[float | None, float | None] = DEFAULT_SEARCH,
     scale: float = 1.0,
     preprocess: str = DEFAULT_PREPROCESS,
     model: str | None = None,
@@ -282,7 +289,8 @@ def register_array(
             against.
         method, preprocess, model: the matcher (:func:`~cade_cli.stereo.estimate_disparity`).
         search: (lowest, highest) disparity searched, px per unit baseline; each camera
-            searches it times its baseline ratio.
+            searches it times its baseline ratio. A None bound ('auto') is estimated for
+            each camera from a coarse match of its pair (the camera's own range, px).
         scale: resolution of the matching, 0 < scale <= 1 (the disparity is brought back
             to full size and rescaled).
         on_camera: called with a camera's name once it is matched (a progress bar).
@@ -297,7 +305,7 @@ def register_array(
     """
     if not 0 < scale <= 1:
         raise CadeError(f"the matching scale must be in (0, 1], got {scale}")
-    if not search[0] < search[1]:
+    if None not in search and not search[0] < search[1]:
         raise CadeError(f"the search range [{search[0]}, {search[1]}] is empty; give min < max")
     bands = check_array_images(geometry, images)
     width, height = geometry.size
