@@ -137,12 +137,13 @@ def test_the_data_levers_are_drawn_only_when_on_and_feed_the_consistency_loss(tm
     plain = GeneratedBatches(base)[3]
     assert "left_alt" not in plain
     levers = GeneratedBatches(TrainConfig(**{**vars(base), "feature_consistency": 0.1, "scene_range": 0.2,
-                                             "eraser": 1.0, "misaligned": 1.0, "misaligned_offset": 2.0}))[3]
+                                             "eraser": 1.0, "misaligned": 1.0, "misaligned_offset": 2.0,
+                                             "ground": 1.0}))[3]
     assert levers["left_alt"].shape == levers["left"].shape
     assert not torch.equal(levers["left_alt"], levers["left"])  # another band of the same view
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=48, width=64, levels=32,
                          workers=0, validate_every=100, architecture="cadenet2d", width2d=16,
-                         feature_consistency=0.1, eraser=0.5, scene_range=0.25)
+                         feature_consistency=0.1, eraser=0.5, scene_range=0.25, ground=0.5)
     assert torch.load(train(config), weights_only=False)["step"] == 2
     with pytest.raises(ValueError, match="cadenet2d"):
         train(TrainConfig(**{**vars(config), "architecture": "cadenet", "out": str(tmp_path / "other")}))

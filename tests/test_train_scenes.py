@@ -304,3 +304,36 @@ def test_the_eraser_paints_the_right_view_and_unmarks_the_pixels_that_matched_th
     np.testing.assert_array_equal(out.nonoccluded, ~matched_painted)
     np.testing.assert_array_equal(out.left, scene.left)
     np.testing.assert_array_equal(out.disparity, scene.disparity)
+
+
+def test_ground_off_draws_nothing_and_changes_nothing():
+    a = render_scene(np.random.default_rng(4), 64, 96, limit=32, textures=TexturePool())
+    b = render_scene(np.random.default_rng(4), 64, 96, limit=32, textures=TexturePool(), ground=0.0)
+    assert np.array_equal(a.left, b.left) and np.array_equal(a.disparity, b.disparity)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_ground_rises_from_its_horizon_to_the_bottom_and_its_views_agree(seed):
+    """With ground=1 every scene has a ground layer: where it shows (no object in front), the
+    disparity grows down each column, reaches more than 40 % of the limit at the bottom, stays
+    inside [0, limit); and warping the right view by the ground truth reproduces the left there."""
+    from cade_cli.train.scenes import ground_layer
+
+    height, width, limit = 96, 160, 48.0
+    layer = ground_layer(np.random.default_rng(seed), height, width, near=2.0, limit=limit, textures=TexturePool())
+    y, x = np.mgrid[0:height, 0:width].astype(np.float32)
+    covered, d = layer.covers(x, y), layer.disparity(x, y)
+    assert covered[-1].all() and not covered[0].any()  # below a horizon 10-60 % down the view
+    assert (np.diff(np.where(covered, d, np.nan), axis=0)[covered[1:] & covered[:-1]] > 0).all()
+    assert 0.4 * limit - 1e-3 <= d[-1].max() < limit and d[covered].min() >= 2.0 - 1e-3
+    scene = render_scene(np.random.default_rng(seed), height, width, limit=limit, textures=TexturePool(),
+                         photometric=NO_PHOTOMETRIC, objects=(0, 1), ground=1.0)
+    bottom = scene.disparity[-4:]
+    assert bottom.mean() > scene.disparity[:4].mean() + 2.0  # near at the bottom, far at the top
+    assert scene.disparity.max() < limit
+    warped = warp_right_to_left(scene.right, scene.disparity)
+    error = np.abs(warped - scene.left).max(axis=2)
+    checked = scene.nonoccluded & ~depth_edges(scene.disparity)
+    checked[: height // 2] = False  # the ground's part of the view
+    assert checked.mean() > 0.2
+    assert np.median(error[checked]) < 0.01

@@ -78,6 +78,9 @@ def fit(
     = 1.0,
     eraser: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of pairs whose right view gets 1-2 "
                                           "rectangles painted over (occlusion augmentation).")] = 0.0,
+    ground: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered scenes with a ground under "
+                                          "the objects (a road or floor from a horizon to near disparities at the "
+                                          "bottom).")] = 0.0,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
@@ -121,7 +124,7 @@ def fit(
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
                          network_input=network_input, architecture=architecture, width2d=width2d,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
-                         eraser=eraser, misaligned_offset=misaligned_offset,
+                         eraser=eraser, ground=ground, misaligned_offset=misaligned_offset,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule)
     train(config, resume=resume)
 

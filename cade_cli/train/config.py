@@ -83,6 +83,9 @@ class TrainConfig:
     small and large baselines both, instead of a range mostly filled with near objects."""
     eraser: float = 0.0
     """Share of pairs whose right view gets 1-2 rectangles painted over (:func:`~cade_cli.train.scenes.erased`)."""
+    ground: float = 0.0
+    """Share of rendered scenes with a ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`:
+    a road or floor rising from a horizon to near disparities at the bottom); 0: none, no draw."""
     misaligned_offset: float = 1.0
     """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
     feature_consistency: float = 0.0

@@ -346,6 +346,7 @@ def render_scene(
     objects: tuple[int, int] = (3, 15),
     photometric: Photometric = Photometric(),
     misalignment: Misalignment = NO_MISALIGNMENT,
+    ground: float = 0.0,
 ) -> StereoScene:
     """Render one stereo pair with disparity in [0, limit).
 
@@ -358,6 +359,8 @@ def render_scene(
         misalignment: residual vertical misalignment of the right view (none by default).
             A misaligned pair's ``nonoccluded`` compares layers across that offset, so
             it may be off by the offset (about a pixel) along occlusion boundaries.
+        ground: share of the scenes with a ground (:func:`ground_layer`) under the objects;
+            no random draw when 0, so earlier runs' scenes are unchanged.
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
@@ -365,6 +368,8 @@ def render_scene(
     layers = [Layer(_plane(rng, height, width, 0.0, background_high), None, *_textured(rng, textures, height, width))]
     corners = layers[0].disparity(np.array([0.0, width, 0.0, width]), np.array([0.0, 0.0, height, height]))
     farthest_background = float(corners.min())
+    if ground > 0 and rng.random() < ground:
+        layers.append(ground_layer(rng, height, width, near=farthest_background, limit=limit, textures=textures))
     for _ in range(rng.integers(*objects)):
         low = farthest_background if rng.random() < 0.8 else 0.0
         layers.append(Layer(_plane(rng, height, width, low, limit * 0.995),
@@ -385,6 +390,21 @@ def render_scene(
         disparity=disparity.astype(np.float32),
         nonoccluded=seen,
     )
+
+
+def ground_layer(rng: np.random.Generator, height: int, width: int, *, near: float, limit: float,
+                 textures: TexturePool) -> Layer:
+    """A ground seen from a camera above it (a road, a floor, a field): covering the view below a
+    horizon row (anywhere from 10 % to 60 % down the view, tilted by up to 2 %), its disparity
+    ``near`` px at the horizon and rising linearly to 40-99 % of ``limit`` at the nearest bottom
+    corner: one plane steeper in y than most of the background's, under everything in front."""
+    horizon = rng.uniform(0.1, 0.6) * height
+    tilt = rng.uniform(-0.02, 0.02)  # rows per column: a camera rolled a little
+    bottom = max(near + 1.0, rng.uniform(0.4, 0.99) * limit)
+    c = (bottom - near) / (height - horizon + abs(tilt) * width / 2)  # the nearest bottom corner reaches ``bottom``
+    a, b = near - c * (horizon - tilt * width / 2), -c * tilt
+    return Layer((float(a), float(b), float(c)),
+                 lambda x, y: y >= horizon + tilt * (x - width / 2), *_textured(rng, textures, height, width))
 
 
 def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
