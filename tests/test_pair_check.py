@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -151,6 +153,26 @@ def test_disparity_warns_about_a_shifted_pair_and_reports_the_offset(shifted_fil
     warnings = [line for line in err.splitlines() if line.startswith("warning: pair check:")]
     assert len(warnings) == 1 and "vertical offset +" in warnings[0] and "--fix-vertical" in warnings[0]
     assert "vertical offset +" in out
+
+
+def test_the_check_never_changes_the_disparity_written(shifted_files, tmp_path, capsys, monkeypatch):
+    """The same shifted pair, with the check warning and with the check replaced by one that
+    finds nothing: the maps written are the same bytes."""
+    import cade_cli.pair_check
+
+    left, _, shifted = shifted_files
+    warned, silent = tmp_path / "warned.pfm", tmp_path / "silent.pfm"
+    code, _, err = run_cade(["disparity", left, shifted, "-o", warned, "-m", "sgbm", "--max-disp", "32"], capsys)
+    assert code == 0 and "warning: pair check:" in err
+    real_check = cade_cli.pair_check.check_pair
+
+    def finds_nothing(*args, **kwargs):
+        return dataclasses.replace(real_check(*args, **kwargs), problems=())
+
+    monkeypatch.setattr(cade_cli.pair_check, "check_pair", finds_nothing)
+    code, _, err = run_cade(["disparity", left, shifted, "-o", silent, "-m", "sgbm", "--max-disp", "32"], capsys)
+    assert code == 0 and "pair check" not in err
+    assert warned.read_bytes() == silent.read_bytes()
 
 
 def test_disparity_of_a_rectified_pair_gives_no_warning(shifted_files, tmp_path, capsys):
