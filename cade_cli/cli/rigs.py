@@ -257,7 +257,6 @@ def register_array(
           f"{seconds:.1f} s")
 
 
-
 def _array_bound(text: str, option: str) -> float | None:
     """A bound of register-array's range: px per unit baseline, or None for ``auto``."""
     from cade_cli.errors import CadeError

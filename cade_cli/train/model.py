@@ -354,7 +354,6 @@ def design_of(config: dict) -> dict:
     return {key: config.get(key, default) for key, default in LEGACY_DESIGN.items()}
 
 
-
 def adapt_state_dict(state: dict[str, torch.Tensor], net: nn.Module) -> dict[str, torch.Tensor]:
     """``state`` made loadable into ``net`` when only kernel sizes differ: a 3x3x3 kernel
     becomes the 1x1x1 kernel that gives the same response on a locally constant input
