@@ -13,16 +13,9 @@ from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
 from cade_cli.train.scenes import (
-    NO_MISALIGNMENT,
-    NO_PHOTOMETRIC,
-    Misalignment,
-    Photometric,
-    TexturePool,
-    _textured,
-    procedural_texture,
-    random_shape,
-    render_scene,
+    NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, TexturePool, _textured, procedural_texture, render_scene,
 )
+from cade_cli.train.shapes import random_shape
 
 
 def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:

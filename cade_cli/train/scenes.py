@@ -18,12 +18,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.train.shapes import Shape, random_shape
 
 TEXTURE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
 
@@ -195,77 +195,6 @@ def procedural_texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
     value = (value - value.min()) / max(float(value.max() - value.min()), 1e-6)
     low, high = rng.random(3).astype(np.float32), rng.random(3).astype(np.float32)
     return (low + value[..., None] * (high - low)).astype(np.float32)
-
-
-Shape = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-
-def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
-    """An analytic object outline, drawn from the kinds real scenes are made of:
-
-    * a wobbly blob (polar radius with a few harmonics) or a rotated rectangle, between
-      4 % and 60 % of the image's smaller side across;
-    * a thin branch: a polyline of 1-4 segments, 1-8 px wide (stems, cables, chair legs);
-    * a lattice: a rotated grid of thin bars (fences, frames, shelves) with holes that
-      show what lies behind.
-    """
-    kind = rng.choice(["blob", "rectangle", "branch", "lattice"], p=[0.4, 0.25, 0.25, 0.1])
-    cx, cy = rng.uniform(-0.1, 1.1) * width, rng.uniform(-0.1, 1.1) * height
-    radius = math.exp(rng.uniform(math.log(0.04), math.log(0.6))) * min(height, width)
-    angle = rng.uniform(0, 2 * math.pi)
-    cos, sin = math.cos(angle), math.sin(angle)
-
-    def frame(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (x - cx) * cos + (y - cy) * sin, (y - cy) * cos - (x - cx) * sin
-
-    if kind == "blob":
-        harmonics = [(k, rng.uniform(0, 0.35 / k), rng.uniform(0, 2 * math.pi)) for k in range(2, 6)]
-        aspect = rng.uniform(0.5, 1.0)
-
-        def blob(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            u, v = frame(x, y)
-            v = v / aspect
-            theta = np.arctan2(v, u)
-            rho = radius * (1 + sum(a * np.cos(k * theta + p) for k, a, p in harmonics))
-            return u * u + v * v < rho * rho
-
-        return blob
-    if kind == "branch":
-        half_width = rng.uniform(0.5, 4.0)
-        points = [(cx, cy)]
-        heading = angle
-        for _ in range(rng.integers(1, 5)):
-            heading += rng.uniform(-0.8, 0.8)
-            length = rng.uniform(0.1, 0.5) * min(height, width)
-            points.append((points[-1][0] + length * math.cos(heading), points[-1][1] + length * math.sin(heading)))
-        segments = list(zip(points[:-1], points[1:]))
-
-        def branch(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            inside = np.zeros(x.shape, bool)
-            for (x0, y0), (x1, y1) in segments:
-                dx, dy = x1 - x0, y1 - y0
-                t = np.clip(((x - x0) * dx + (y - y0) * dy) / (dx * dx + dy * dy + 1e-9), 0.0, 1.0)
-                inside |= (x - x0 - t * dx) ** 2 + (y - y0 - t * dy) ** 2 < half_width * half_width
-            return inside
-
-        return branch
-    half_w, half_h = radius, radius * rng.uniform(0.2, 1.0)
-    if kind == "lattice":
-        period = rng.uniform(8.0, 40.0)
-        bar = rng.uniform(1.5, 0.4 * period)
-
-        def lattice(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            u, v = frame(x, y)
-            bars = (np.mod(u + half_w, period) < bar) | (np.mod(v + half_h, period) < bar)
-            return (np.abs(u) < half_w) & (np.abs(v) < half_h) & bars
-
-        return lattice
-
-    def rectangle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        u, v = frame(x, y)
-        return (np.abs(u) < half_w) & (np.abs(v) < half_h)
-
-    return rectangle
 
 
 @dataclass(frozen=True)
