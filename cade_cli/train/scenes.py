@@ -1,8 +1,9 @@
 """Artificial stereo scenes with exact disparity, in the spirit of FlyingThings3D.
 
-A scene is a stack of layers: a slanted background plane covering the whole view and
-a few objects in front of it. Each layer has an affine disparity d(x, y) = a + b x + c y
-(a slanted plane), a shape (analytic, so it can be evaluated at any sub-pixel position)
+A scene is a stack of layers: a slanted background plane covering the whole view, a
+ground below a horizon in some scenes (:func:`ground_layer`), and a few objects in front.
+Each layer has an affine disparity d(x, y) = a + b x + c y (a slanted plane), a shape
+(analytic, so it can be evaluated at any sub-pixel position: :mod:`cade_cli.train.shapes`)
 and a texture mapped into left-view coordinates with a random similarity transform.
 
 The left view samples every layer at its own pixel; the right view maps each right
