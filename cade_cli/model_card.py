@@ -76,6 +76,10 @@ class ModelCard:
     card's ``runtime_refinement``): SGBM of the rank-transformed raw bands (every card
     before Accuracy III, and cards without the field), or nothing (``none``: the network's
     map is the answer, at the network's speed)."""
+    context: int = 64
+    """Px of image around a pixel that move the network's estimate there (the card's
+    ``context_px``; 64 for cards without it, measured on cade-v4): the collar of a tiled
+    window (:func:`cade_cli.scale.windows.method_collar`)."""
 
 
 RUNTIME_REFINEMENTS = ("rank-sgbm", "none")
@@ -128,7 +132,10 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         refinement = card.get("runtime_refinement", "rank-sgbm")
         if refinement not in RUNTIME_REFINEMENTS:
             raise ValueError(f"runtime_refinement {refinement!r} is not one of {', '.join(RUNTIME_REFINEMENTS)}")
-        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement)
+        context = int(card.get("context_px", 64))
+        if context < 0:
+            raise ValueError(f"context_px {context} is negative")
+        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

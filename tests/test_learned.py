@@ -13,12 +13,12 @@ from hypothesis import strategies as st
 
 from cade_cli import model_card
 from cade_cli.errors import CadeError
-from cade_cli.matching import MATCHERS, densify, network
+from cade_cli.matching import MATCHERS, densify, get_matcher, network
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.learned import LearnedPipeline
 from cade_cli.matching.network import choose_variant, pyramid_factor, shift_right_view, strips
 from cade_cli.matching.refinement import RankSgbmRefinement, correlation, inverted_regions
-from cade_cli.model_card import ModelCard, ModelVariant, read_card
+from cade_cli.model_card import DEFAULT_MODEL, TIERS, ModelCard, ModelVariant, read_card
 from synthetic import render_pair
 
 CADE = MATCHERS["cade"]
@@ -29,9 +29,10 @@ def dense(result) -> np.ndarray:
     return densify(result.disparity, result.valid)
 
 
-def test_shipped_model_matches_its_card():
-    card = read_card()
-    assert len(card.variants) >= 2
+@pytest.mark.parametrize("name", [DEFAULT_MODEL, *TIERS.values(), "cade-v4"])
+def test_shipped_models_match_their_cards(name):
+    card = read_card(name)
+    assert card.variants
     for variant in card.variants:
         assert variant.path.is_file() and variant.levels % card.divisor == 0
         network.onnx_session(variant.path, variant.sha256)  # verifies the sha256
@@ -152,7 +153,9 @@ def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
     pair = render_pair(rng, (96, 160), background=(6.0, 0.0), foreground=(21.0, 0.0))
     result = CADE(pair.left, pair.right, max_disp=32)
     assert pair.occluded.sum() > 100
-    assert np.median(np.abs(dense(result) - pair.disparity)[pair.occluded]) < 1.0  # background side
+    # background side (6 px; the foreground side would be 15 px off): cade-v4 0.51 px, cade-v9 1.23
+    # on this pair (0.50 and 0.37 on another seed)
+    assert np.median(np.abs(dense(result) - pair.disparity)[pair.occluded]) < 2.0
     assert result.valid[pair.reliable].mean() > 0.95
     # invalid: the left border (matches leave the right view) and around the occlusion
     # beside the foreground (rows 24..71, left edge at x = 53), hardly anywhere else
@@ -169,7 +172,9 @@ def test_negative_range_by_pre_shifting(rng):
 
 
 def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
-    card = read_card()
+    """A card with several range variants (cade-v4's: 96 ... 256 levels of the same 3D weights)
+    runs the widest at full size for a span it covers; cade-v9, a 2D network, has one variant."""
+    card = read_card("cade-v4")
     narrow, wide = card.variants[-2].levels, card.variants[-1].levels
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))
     chosen = []
@@ -179,7 +184,7 @@ def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
         return chosen[-1]
 
     monkeypatch.setattr(network, "choose_variant", recording)
-    result = CADE(pair.left, pair.right, max_disp=wide - network.RANGE_MARGIN)
+    result = get_matcher("cade", model="cade-v4")(pair.left, pair.right, max_disp=wide - network.RANGE_MARGIN)
     assert [(variant.levels, factor) for variant, factor in chosen] == [(wide, 1)]
     assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
 
