@@ -29,7 +29,7 @@ CARD_FORMAT = 2
 """Version of the card layout; format 1 (sessions 1-11) named ``levels`` ``max_disp``."""
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
-DEFAULT_MODEL = "cade-v4"
+DEFAULT_MODEL = "cade-v9"
 TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v6"}
 """``--model fast`` and ``--model accurate``: the shipped card each tier names (models/README.md
 gives both tiers' benchmark rows and speed)."""
