@@ -2,8 +2,10 @@
 # The Accuracy III training campaign: one run, resumed by every session (models/README.md,
 # "Sessions 17–19"). CadeNet2D with the per-disparity aggregation (--slice-channels 4), from scratch,
 # seed 29. Run from the repository root; it continues from runs/campaign-2d/last.pt.
+# --ground 0.3 from step 10,500 on (session 19: its ablation, models/README.md); the steps
+# before it ran without (this file's earlier versions in git).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/campaign-2d --architecture cadenet2d \
   --levels 192 --textures ../shared/data/textures --data-dir ../shared/data \
   --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
-  --slice-channels 4 --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 29 \
+  --slice-channels 4 --ground 0.3 --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 29 \
   --device cpu --threads 2 --workers 0 --validate-every 1000 --validate-rgb "$@"
