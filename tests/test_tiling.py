@@ -147,7 +147,7 @@ def test_bad_memory_limit_is_one_clear_line(tmp_path, pair, capsys, value):
 
 def test_a_learned_method_plans_its_network_strip_and_its_tiles_fit(rng):
     """Planning only (no matching): a pair large enough that a small core's window, with the
-    network's collar (128 px for cade-v9), is well under half of it."""
+    network's collar (128 px for CadeNet2D), is well under half of it."""
     pair = render_pair(rng, (480, 800), background=(20.0, 0.05), foreground=(40.0, 0.0))
     height, width = pair.left.shape
     assert tile_memory_bytes("cade", width, height, 65) > matching_memory_bytes("cade", width, height, 65)
