@@ -48,6 +48,12 @@ def model_dir() -> Path:
     return installed if installed.is_dir() else package.parent / "models"
 
 
+DEFAULT_CONTEXT_PX = 64
+"""The context of a card without ``context_px``, px: one pixel of either input moves the 3D
+CadeNet's disparity by more than 0.01 px up to about 40 rows and 50 columns away (by 1e-4 px up
+to about 70; Adirondack, models/cade-v4). A 2D U-Net down to 1/16 sees further (its card says so)."""
+
+
 @dataclass(frozen=True)
 class ModelVariant:
     """One ONNX export of the weights, searching disparities 0 .. ``levels`` - 1 px."""
@@ -77,9 +83,9 @@ class ModelCard:
     card's ``runtime_refinement``): SGBM of the rank-transformed raw bands (every card
     before Accuracy III, and cards without the field), or nothing (``none``: the network's
     map is the answer, at the network's speed)."""
-    context: int = 64
+    context: int = DEFAULT_CONTEXT_PX
     """Px of image around a pixel that move the network's estimate there (the card's
-    ``context_px``; 64 for cards without it, measured on cade-v4): the collar of a tiled
+    ``context_px``; :data:`DEFAULT_CONTEXT_PX` for cards without it): the collar of a tiled
     window (:func:`cade_cli.scale.windows.method_collar`)."""
 
 
@@ -133,7 +139,7 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         refinement = card.get("runtime_refinement", "rank-sgbm")
         if refinement not in RUNTIME_REFINEMENTS:
             raise ValueError(f"runtime_refinement {refinement!r} is not one of {', '.join(RUNTIME_REFINEMENTS)}")
-        context = int(card.get("context_px", 64))
+        context = int(card.get("context_px", DEFAULT_CONTEXT_PX))
         if context < 0:
             raise ValueError(f"context_px {context} is negative")
         return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context)

@@ -9,7 +9,7 @@ import pytest
 from cade_cli.errors import CadeError
 from cade_cli.scale.memory import BASE_BYTES, IMAGE_BYTES, matching_memory_bytes, tile_memory_bytes, parse_memory
 from cade_cli.scale.tiling import estimate_disparity_tiled, plan_tiles, seam_distance
-from cade_cli.scale.windows import LEARNED_COLLAR, method_collar, window_alignment
+from cade_cli.scale.windows import method_collar, window_alignment
 from cade_cli.stereo import estimate_disparity
 from cli_runner import run_cade, write_png16
 from cade_cli.model_card import read_card
@@ -66,7 +66,7 @@ def test_learned_tiles_equal_the_untiled_map_away_from_seams(pair, method, agree
     tiled, plan = estimate_disparity_tiled(pair.left, pair.right, method=method, max_disp=MAX_DISP,
                                            memory_limit=2**30, core=100, seed=False)
     assert plan.tiled and len(plan.tiles) == 3 * 4
-    assert plan.collar == method_collar(method) == max(LEARNED_COLLAR, read_card().context)
+    assert plan.collar == method_collar(method) == read_card().context == 128  # cade-v10's card
     alignment = window_alignment(method, MAX_DISP)
     assert alignment == read_card().divisor  # the shipped network's input grid
     assert all(tile.window_rows[0] % alignment == tile.window_columns[0] % alignment == 0 for tile in plan.tiles)

@@ -327,8 +327,9 @@ def run_benchmark(
     live = on_run if jobs == 1 else None  # worker processes report a scene's runs once it is done
     for name, (records, shape, album) in map_scenes(partial(_scene_unit, plan=plan, on_run=live), reader,
                                                     Path(data_dir), scene_names, jobs=jobs, threads=timing.threads):
-        for _ in range(per_scene if on_run is not None and live is None else 0):
-            on_run(f"{name} done")
+        if on_run is not None and live is None:  # a worker's scene: its runs all at once
+            for _ in range(per_scene):
+                on_run(f"{name} done")
         run.records.extend(records)
         run.scene_shapes[name] = shape
         if album is not None:

@@ -17,18 +17,12 @@ COLLAR = 32
 """Px added on every side of a core and dropped after matching: the context a classical
 matcher's windows, SGM paths and checks use near the core's edge."""
 
-LEARNED_COLLAR = 64
-"""The smallest collar of a learned method, px: one pixel of either input moves the CADE
-network's disparity by more than 0.01 px up to about 40 rows and 50 columns away (by 1e-4
-px up to about 70; Adirondack, models/cade-v4), beyond :data:`COLLAR`. A card may ask for
-more (its ``context_px``: a 2D U-Net down to 1/16 sees further)."""
-
-
 def method_collar(method: str, model: str | None = None) -> int:
-    """The collar ``method``'s windows get, px: its network card's context (at least
-    :data:`LEARNED_COLLAR`) for a learned method, :data:`COLLAR` for the classical ones."""
+    """The collar ``method``'s windows get, px: its network card's context
+    (:attr:`cade_cli.model_card.ModelCard.context`) for a learned method, :data:`COLLAR` for
+    the classical ones."""
     kernel = learned_kernel(method, model)
-    return COLLAR if kernel is None else max(LEARNED_COLLAR, kernel.network.card().context)
+    return COLLAR if kernel is None else kernel.network.card().context
 
 
 def window_alignment(method: str, span: int, model: str | None = None) -> int:

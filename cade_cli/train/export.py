@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from cade_cli.io.checksum import file_sha256
-from cade_cli.model_card import write_card
+from cade_cli.model_card import DEFAULT_CONTEXT_PX, write_card
 from cade_cli.train.model import DIVISOR, CadeNet, ExportWrapper, parameter_count
 from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import network_input_of
@@ -35,9 +35,9 @@ INPUT_TRANSFORMS = {"cade": "cade_cli.spectral.color_agnostic (window 3) on each
 """The card's ``input_transform`` text for each ``input`` (:data:`cade_cli.spectral.NETWORK_INPUTS`)."""
 
 
-CONTEXT_PX = {"cadenet": 64, "cadenet2d": 128}
+CONTEXT_PX = {"cadenet": DEFAULT_CONTEXT_PX, "cadenet2d": 128}
 """The card's ``context_px`` (a tiled window's collar, :func:`cade_cli.scale.windows.method_collar`):
-the 3D CadeNet moves its estimate by more than 0.01 px up to about 50 px away; CadeNet2D's U-Net
+the 3D CadeNet moves its estimate by more than 0.01 px up to about 50 px away (:data:`DEFAULT_CONTEXT_PX`); CadeNet2D's U-Net
 down to 1/16 sees further (cade-v9 on a rendered 400x240 pair, 100 px cores: a 64 px collar left
 2.3 % of the pixels away from seams more than 0.1 px off the untiled map, up to 1.17 px; 128 px
 left 0.1 %, up to 0.22 px)."""
