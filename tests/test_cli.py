@@ -346,3 +346,14 @@ def test_step_bar_counts_stages_and_the_tiles_added_to_them():
         bar.advance()
         task = bar.progress.tasks[0]
         assert (task.completed, task.total, task.description) == (2, 7, "matching 5 tiles")
+
+
+def test_a_step_bar_without_a_total_takes_one_when_the_work_is_known():
+    from cade_cli.cli.options import StepBar
+
+    with StepBar(None, "benchmark middlebury14") as bar:  # the benchmark: its runs are counted after loading
+        assert bar.progress.tasks[0].total is None
+        bar.set_total(12)
+        bar.advance("middlebury14 1")
+        task = bar.progress.tasks[0]
+        assert (task.completed, task.total, task.description) == (1, 12, "middlebury14 1")

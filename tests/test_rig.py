@@ -564,3 +564,12 @@ def test_implausible_scale():
     assert implausible_scale(0.025, 0.12) is None
     assert "a baseline of 83.18 m" in implausible_scale(0.4, 83.18)
     assert "--square 25 m" in implausible_scale(25, 83.18)
+
+
+def test_the_widest_baseline_is_the_longest_camera_translation():
+    from cade_cli.rigs.calibration import widest_baseline
+
+    rig = mirrored_rig()
+    assert widest_baseline(rig) == pytest.approx(float(np.linalg.norm(T_RIGHT)))
+    far = Camera("far", "bp700", SIZE, K=K_RIGHT, dist=DIST_RIGHT, R=np.eye(3), t=np.array([0.3, 0.4, 0.0]))
+    assert widest_baseline(Rig("right", (*rig.cameras, far))) == pytest.approx(0.5)

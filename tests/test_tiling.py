@@ -55,25 +55,40 @@ def test_tiled_map_equals_the_untiled_one_away_from_seams(pair, method):
     assert tiled.confidence is not None and np.all(tiled.confidence[~tiled.valid] == 0)
 
 
-@pytest.mark.parametrize("method, agreeing", [("cade-network", 0.999), ("cade", 0.99)])
-def test_learned_tiles_equal_the_untiled_map_away_from_seams(pair, method, agreeing):
-    """100 px cores: windows that start off the network's 8 px grid. Aligned and with the
-    64 px collar, the network's tiles are its untiled map (all pixels measured equal); the
-    refinement's OpenCV SGBM restarts paths at stripes that depend on the window's height,
-    so ``cade`` keeps a residue (99.6 % measured). Before the 8 px grid and the 64 px collar:
-    28.6 % (``cade-network``) and 97.2 % (``cade``)."""
+@pytest.fixture
+def wide_pair(rng):
+    """480x800, the same scene: wide enough that a learned window (core + 2 x 128 px collar)
+    is well short of the whole picture, so tiles see less than the untiled map does."""
+    return render_pair(rng, (480, 800), background=(20.0, 0.05), foreground=(40.0, 0.0))
+
+
+@pytest.mark.parametrize("method, agreeing", [("cade-network", 0.99), ("cade", 0.99)])
+def test_learned_tiles_equal_the_untiled_map_away_from_seams(wide_pair, method, agreeing):
+    """160 px cores, windows on the network's input grid, the card's collar (cade-v10: 128 px).
+    Measured with cade-v10 (``cade-network``): 0.4 % of the pixels 16 px or more from a seam
+    are more than 0.05 px off the untiled map, 0.1 % more than 0.1 px; with a 64 px collar
+    2.5 % and 0.7 % (checked below: the collar is what keeps the tiles equal). ``cade``'s
+    refinement and chooser mostly hide the network's residue (99.4 % within 0.05 px)."""
+    pair = wide_pair
     whole = estimate_disparity(pair.left, pair.right, method=method, max_disp=MAX_DISP)
-    tiled, plan = estimate_disparity_tiled(pair.left, pair.right, method=method, max_disp=MAX_DISP,
-                                           memory_limit=2**30, core=100, seed=False)
-    assert plan.tiled and len(plan.tiles) == 3 * 4
-    assert plan.collar == method_collar(method) == read_card().context == 128  # cade-v10's card
-    alignment = window_alignment(method, MAX_DISP)
-    assert alignment == read_card().divisor  # the shipped network's input grid
-    assert all(tile.window_rows[0] % alignment == tile.window_columns[0] % alignment == 0 for tile in plan.tiles)
-    away = seam_distance(plan, pair.left.shape) >= 16
-    both = whole.valid & tiled.valid
-    assert (both & away).sum() > 0.4 * both.size
-    assert np.mean(np.abs(whole.disparity - tiled.disparity)[both & away] <= 0.01) > agreeing
+
+    def agreement(collar):
+        tiled, plan = estimate_disparity_tiled(pair.left, pair.right, method=method, max_disp=MAX_DISP,
+                                               memory_limit=2**30, core=160, seed=False, collar=collar)
+        assert plan.tiled and len(plan.tiles) == 3 * 5
+        alignment = window_alignment(method, MAX_DISP)
+        assert all(tile.window_rows[0] % alignment == tile.window_columns[0] % alignment == 0 for tile in plan.tiles)
+        away = seam_distance(plan, pair.left.shape) >= 16
+        both = whole.valid & tiled.valid
+        assert (both & away).sum() > 0.4 * both.size
+        return plan.collar, np.mean(np.abs(whole.disparity - tiled.disparity)[both & away] <= 0.05)
+
+    collar, agreeing_pixels = agreement(None)
+    assert collar == method_collar(method) == read_card().context == 128  # cade-v10's card
+    assert window_alignment(method, MAX_DISP) == read_card().divisor  # the shipped network's input grid
+    assert agreeing_pixels > agreeing
+    if method == "cade-network":
+        assert agreement(64)[1] < agreeing  # half the card's collar: visibly off
 
 
 def test_seeded_ranges_cover_the_truth_and_narrow_the_search(pair):

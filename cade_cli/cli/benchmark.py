@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cade_cli.cli.options import BENCHMARK_METHODS, check_output, print_note
+from cade_cli.cli.options import BENCHMARK_METHODS, StepBar, check_output, print_note
 
 
 def benchmark(
@@ -36,7 +36,6 @@ def benchmark(
     import shlex
 
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
     from cade_cli.errors import CadeError
@@ -55,12 +54,9 @@ def benchmark(
                           ("--scenes", scenes)):
         if value is not None and not split(value):
             raise CadeError(f"{option} {value!r} names nothing; give comma-separated names, or leave it out for the default")
-    console = Console(stderr=True)
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     # Every output is checked before the run and staged during it; all appear at the end, or none.
     with atomic_outputs([json_file, report, html], folders=[save_dir]) as staged:
-        with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
-            bar = progress.add_task(f"benchmark {dataset}", total=None)  # one step per matcher run
+        with StepBar(None, f"benchmark {dataset}") as bar:  # one step per matcher run
 
             learned = [name for name in split(methods) if name in LEARNED_METHODS]
             if model is not None and not learned:
@@ -84,8 +80,8 @@ def benchmark(
                 preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
                 save_dir=None if save_dir is None else staged[save_dir], matchers=matchers,
                 tile_width=None if html is None else TILE_WIDTH,
-                on_start=lambda total: progress.update(bar, total=total),
-                on_run=lambda done: progress.update(bar, advance=1, description=f"{dataset} {done}"),
+                on_start=bar.set_total,
+                on_run=lambda done: bar.advance(f"{dataset} {done}"),
             )
         if left_out(run):
             print_note(f"left out, as they do not apply: {left_out(run)}")

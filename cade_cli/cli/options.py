@@ -206,9 +206,9 @@ def check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, .
 
 class StepBar:
     """A transient progress bar on stderr for one long command, counting its steps (stages, tiles,
-    tasks): what runs now, steps done of all, time elapsed. Shown only when stderr is a terminal."""
+    tasks, matcher runs): what runs now, steps done of all, time elapsed. Shown only when stderr is a terminal."""
 
-    def __init__(self, total: int, description: str) -> None:
+    def __init__(self, total: int | None, description: str) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -224,6 +224,10 @@ class StepBar:
 
     def __exit__(self, *exc_info) -> None:
         self.progress.stop()
+
+    def set_total(self, total: int) -> None:
+        """The number of steps, once known (a bar made with ``total`` None spins until then)."""
+        self.progress.update(self.task, total=total)
 
     def advance(self, description: str | None = None, *, steps: int = 1, more: int = 0) -> None:
         """Count ``steps`` done and ``more`` steps added to the total, then show ``description`` (what runs now)."""

@@ -11,7 +11,7 @@ from typing import Annotated, Optional
 import typer
 
 from cade_cli.cli.options import (
-    DEFAULT_METHOD, MethodOption, ModelOption, PreprocessOption, check_output, print_note, print_warning,
+    DEFAULT_METHOD, MethodOption, ModelOption, PreprocessOption, StepBar, check_output, print_note, print_warning,
     report_misalignment,
 )
 
@@ -47,7 +47,7 @@ def calibrate(
     from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
     from cade_cli.io.images import read_band
     from cade_cli.rigs.boards import draw_detection, parse_board
-    from cade_cli.rigs.calibration import CameraImages, calibrate_rig, implausible_scale
+    from cade_cli.rigs.calibration import CameraImages, calibrate_rig, implausible_scale, widest_baseline
     from cade_cli.rigs.rig_file import save_rig
 
     check_output(output, suffixes=(".json",), inputs=())
@@ -76,7 +76,7 @@ def calibrate(
                                              left_out=key in found.left_out[name])
                     cv2.imwrite(str(staged[vis] / f"{name}_{key}.png"), picture)
         save_rig(rig, staged[output])
-    warning = implausible_scale(square, max(float(sum(value**2 for value in c.t)) ** 0.5 for c in rig.cameras))
+    warning = implausible_scale(square, widest_baseline(rig))
     if warning is not None:
         print_warning(warning)
     names = rig.names
@@ -184,9 +184,6 @@ def register_array(
                                                      "(default: the first camera, the reference, the last).")] = None,
 ) -> None:
     """Register every camera of the array in RIG onto its reference camera: one multi-band cube."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.io.disparity import write_disparity
@@ -219,16 +216,12 @@ def register_array(
         if note:
             print_note(f"{note}; camera {camera.name} uses it")
         bands.append(band)
-    console = Console(stderr=True)
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     started = time.perf_counter()
-    with Progress(*columns, console=console, transient=True, disable=not console.is_terminal) as progress:
-        task = "matching cameras" if not plane_only else "warping cameras"
-        bar = progress.add_task(task, total=len(geometry.cameras))
+    with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras") as bar:
         registration = register_cameras(
             bands, geometry, parallax=not plane_only, method=method, search=search, scale=match_scale,
             preprocess=preprocess, model=model,
-            on_camera=lambda name: progress.update(bar, advance=1, description=f"{name} done"),
+            on_camera=lambda name: bar.advance(f"{name} done"),
         )
     seconds = time.perf_counter() - started
     details = {"rig": str(rig_file), "images": [str(paths[c.name]) for c in order], "plane_only": plane_only}

@@ -46,6 +46,8 @@ class SceneAlbum:
         bands: (protocol, task) -> (left band, right band) pictures, as matched.
         maps: (protocol, method, preprocess, degradation, task) -> (disparity picture,
             error picture) of the scored map (:func:`map_key` of its record).
+        small_truth: the ground truth shrunk to ``width``, which every error picture is
+            measured against (shrunk once per scene, not once per map).
     """
 
     scene: str
@@ -54,6 +56,7 @@ class SceneAlbum:
     ground_truth: bytes
     bands: dict[tuple[str, str], tuple[bytes, bytes]] = field(default_factory=dict)
     maps: dict[tuple[str, str, str, str, str], tuple[bytes, bytes]] = field(default_factory=dict)
+    small_truth: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @classmethod
     def of(cls, scene: Scene, *, width: int = TILE_WIDTH) -> SceneAlbum:
@@ -63,9 +66,9 @@ class SceneAlbum:
         from cade_cli.io.match_outputs import disparity_picture
 
         value_range = ground_truth_range(scene.disparity, max_disp=scene.max_disp)
-        picture = disparity_picture(shrink_map(scene.disparity, width), value_range=value_range,
-                                    invalid_label="black = no ground truth")
-        return cls(scene.name, width, value_range, png(picture))
+        small_truth = shrink_map(scene.disparity, width)
+        picture = disparity_picture(small_truth, value_range=value_range, invalid_label="black = no ground truth")
+        return cls(scene.name, width, value_range, png(picture), small_truth=small_truth)
 
     def add(self, record: Record, disparity: np.ndarray, scene: Scene) -> None:
         """Add the pictures of one scored map (``record``'s ``disparity`` of ``scene``),
@@ -76,9 +79,11 @@ class SceneAlbum:
         if band_key not in self.bands:
             left, right = task_images(record.protocol, record.task, scene.left, scene.right)
             self.bands[band_key] = (png(band_picture(left, self.width)), png(band_picture(right, self.width)))
-        small, gt = shrink_map(disparity, self.width), shrink_map(scene.disparity, self.width)
+        if self.small_truth is None:
+            self.small_truth = shrink_map(scene.disparity, self.width)
+        small = shrink_map(disparity, self.width)
         self.maps[map_key(record)] = (png(disparity_picture(small, value_range=self.value_range)),
-                                      png(error_picture(small, gt)))
+                                      png(error_picture(small, self.small_truth)))
 
 
 def map_key(record: Record) -> tuple[str, str, str, str, str]:

@@ -231,6 +231,12 @@ def _board_hint(board: Board, name: str, views, detections, notes: list[str]) ->
     return [note for note in notes if note.endswith(f"for camera {name}")][-1:] + [hint]
 
 
+def widest_baseline(rig) -> float:
+    """The longest camera translation from the rig's origin camera, in the rig's unit (what
+    :func:`implausible_scale` checks: a scale error shows most on the widest pair)."""
+    return max(float(np.linalg.norm(camera.t)) for camera in rig.cameras)
+
+
 def implausible_scale(square: float, baseline: float) -> str | None:
     """A warning when the square side or the baseline (both metres) look like another unit
     (above :data:`PLAUSIBLE_SQUARE_M` or :data:`PLAUSIBLE_BASELINE_M`: millimetres given as
