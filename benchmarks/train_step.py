@@ -28,6 +28,8 @@ DESIGNS = {
     "cadenet2d (192 levels)": {"architecture": "cadenet2d", "levels": 192},
     "cadenet2d + per-disparity aggregation (the campaign)": {"architecture": "cadenet2d", "levels": 192,
                                                               "slice_channels": 4},
+    "cadenet2d f16 w32 h8, 128 levels (session 20's fast design)": {
+        "architecture": "cadenet2d", "levels": 128, "features2d": 16, "width2d": 32, "half_channels": 8},
 }
 
 
@@ -40,12 +42,15 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=8)
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--only", nargs="*", help="the designs to time (names from the table; default all)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"batch {args.batch} x {args.height}x{args.width}, {args.threads} threads, {args.steps} timed steps")
     print("| design | parameters | data s/step | compute s/step | s/sample |")
     print("|---|---:|---:|---:|---:|")
     for name, design in DESIGNS.items():
+        if args.only and name not in args.only:
+            continue
         config = TrainConfig(out="", textures=args.textures, batch=args.batch, height=args.height, width=args.width,
                              steps=args.warmup + args.steps)
         config = replace(config, **design)

@@ -70,6 +70,17 @@ def test_a_config_names_its_architecture():
         network_of({**vars(config), "architecture": "nope"})
 
 
+def test_a_config_sets_the_narrow_designs_widths_and_an_older_config_keeps_the_campaigns():
+    narrow = network_of(vars(TrainConfig(out="x", textures=[], levels=32, architecture="cadenet2d", features2d=16,
+                                         half_channels=8)))
+    assert (narrow.design["features"], narrow.design["half_channels"]) == (16, 8)
+    left = right = torch.rand(1, 1, 32, 48)
+    with torch.no_grad():
+        assert narrow.eval()(left, right)["features"].shape == (1, 16, 8, 12)
+    older = {"architecture": "cadenet2d", "levels": 32}  # a config.json written before the keys existed
+    assert (network_of(older).design["features"], network_of(older).design["half_channels"]) == (32, 16)
+
+
 def test_the_slice_aggregation_applies_one_filter_to_every_disparity_and_starts_at_zero():
     from cade_cli.train.net2d import SliceAggregation
 

@@ -69,6 +69,9 @@ def fit(
     architecture: Annotated[str, typer.Option(help="cadenet (3D aggregation; cade-v1 ... v8) or cadenet2d (the "
                                               "all-2D generation of Accuracy III).")] = "cadenet",
     width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution.")] = 48,
+    features2d: Annotated[int, typer.Option(min=4, help="cadenet2d: channels of the 1/4-resolution features "
+                                            "(a multiple of the correlation's 4 groups).")] = 32,
+    half_channels: Annotated[int, typer.Option(min=4, help="cadenet2d: channels of the 1/2-level refinement.")] = 16,
     full_refinement: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a full-resolution refinement "
                                                  "(0: none; the 1/2-level estimate upsampled).")] = 0,
     slice_channels: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a spatial aggregation shared by "
@@ -122,7 +125,8 @@ def fit(
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
-                         network_input=network_input, architecture=architecture, width2d=width2d,
+                         network_input=network_input, architecture=architecture, width2d=width2d, features2d=features2d,
+                         half_channels=half_channels,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, misaligned_offset=misaligned_offset,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule)

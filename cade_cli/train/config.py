@@ -73,6 +73,10 @@ class TrainConfig:
     aggregation, every model up to cade-v8) or ``cadenet2d`` (the all-2D generation)."""
     width2d: int = 48
     """``cadenet2d``: the 2D U-Net's channels at 1/4 resolution."""
+    features2d: int = 32
+    """``cadenet2d``: channels of the 1/4-resolution features (the correlation's input)."""
+    half_channels: int = 16
+    """``cadenet2d``: channels of the 1/2-level refinement."""
     full_refinement: int = 0
     """``cadenet2d``: channels of a full-resolution refinement after the 1/2-level one (0: none)."""
     slice_channels: int = 0

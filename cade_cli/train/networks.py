@@ -18,8 +18,9 @@ def network_of(config: dict) -> nn.Module:
     architecture = config.get("architecture") or "cadenet"
     levels = config.get("levels", config.get("max_disp"))  # "max_disp": runs before v6
     if architecture == "cadenet2d":
-        return CadeNet2D(levels, width=config.get("width2d", 48), refine_channels=config.get("full_refinement", 0),
-                         slice_channels=config.get("slice_channels", 0))
+        return CadeNet2D(levels, features=config.get("features2d", 32), groups=config.get("groups2d", 4),
+                         width=config.get("width2d", 48), half_channels=config.get("half_channels", 16),
+                         refine_channels=config.get("full_refinement", 0), slice_channels=config.get("slice_channels", 0))
     if architecture != "cadenet":
         raise ValueError(f"architecture must be one of {', '.join(ARCHITECTURES)}, got {architecture!r}")
     return CadeNet(levels, **design_of(config))
