@@ -226,3 +226,24 @@ def test_a_crop_schedule_grows_the_crops_at_its_steps_and_refuses_malformed_entr
     for bad in ("0:64x60", "5:64x64,2:64x64", "64x64", "0:axb"):
         with pytest.raises(ValueError):
             parse_crop_schedule(bad)
+
+
+def test_the_exported_row_read_equals_the_bilinear_grid_read_zeros_outside_included():
+    from cade_cli.train.model import row_gathered, shifted_right
+
+    generator = torch.Generator().manual_seed(0)
+    features = torch.rand(2, 8, 12, 40, generator=generator)
+    disparity = torch.rand(2, 1, 12, 40, generator=generator) * 60 - 10  # some reads fall off either edge
+    expected = shifted_right(features, disparity)
+    assert torch.allclose(row_gathered(features, disparity), expected, atol=1e-4)
+    assert float(expected.abs().sum()) > 0 and torch.equal(row_gathered(features, torch.full_like(disparity, 50.0)),
+                                                           torch.zeros_like(features))
+
+
+def test_in_eval_the_views_run_apart_and_give_what_the_batched_views_give():
+    net = CadeNet2D(levels=32, features=16, width=16).eval()
+    left, right = torch.rand(2, 1, 1, 32, 48).unbind(0)
+    with torch.no_grad():
+        half, quarter = net.features(torch.cat([left, right]))
+        apart = net.features(right)
+    assert torch.allclose(half[1:], apart[0], atol=1e-6) and torch.allclose(quarter[1:], apart[1], atol=1e-6)

@@ -150,7 +150,7 @@ class HalfRefinement(nn.Module):
         nn.init.zeros_(self.net[-1].bias)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
-        compared_left, compared_right = self.compare(torch.cat([left, right], dim=0)).chunk(2, dim=0)
+        compared_left, compared_right = self.compare(left), self.compare(right)
         difference = compared_left - shifted_right(compared_right, disparity)
         guide = torch.cat([left, difference, disparity / (0.5 * DISPARITY_SCALE)], dim=1)
         return disparity + self.net(guide)
@@ -208,9 +208,11 @@ class CadeNet2D(nn.Module):
         (px), ``half`` (after the 1/2-level refinement, upsampled) and, with ``refine``,
         ``disparity`` (after the full-resolution one); all (B, 1, H, W), full-resolution px;
         and the left view's 1/4 ``features`` (B, C, H/4, W/4), for the consistency loss."""
-        half, quarter = self.features(torch.cat([left, right], dim=0))
-        half_left, half_right = half.chunk(2, dim=0)
-        feat_left, feat_right = quarter.chunk(2, dim=0)
+        if self.training:  # one batch: BatchNorm's statistics over both views
+            half, quarter = self.features(torch.cat([left, right], dim=0))
+            (half_left, half_right), (feat_left, feat_right) = half.chunk(2, dim=0), quarter.chunk(2, dim=0)
+        else:  # the same values (BatchNorm's running statistics), without copying the views apart
+            (half_left, feat_left), (half_right, feat_right) = self.features(left), self.features(right)
         cost = normalised_correlation(feat_left, feat_right, self.coarse_levels, self.groups)
         size = left.shape[-2:]
         batch, _, height, width = cost.shape
