@@ -247,3 +247,20 @@ def test_in_eval_the_views_run_apart_and_give_what_the_batched_views_give():
         half, quarter = net.features(torch.cat([left, right]))
         apart = net.features(right)
     assert torch.allclose(half[1:], apart[0], atol=1e-6) and torch.allclose(quarter[1:], apart[1], atol=1e-6)
+
+
+def test_the_exported_per_disparity_stage_is_one_grouped_convolution_a_layer_with_the_same_values():
+    from cade_cli.train.net2d import SliceAggregation
+
+    torch.manual_seed(0)
+    stage = SliceAggregation(groups=4, channels=4)
+    for module in stage.modules():  # trained-looking BatchNorm statistics and a non-zero exit
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-0.5, 0.5), module.running_var.uniform_(0.5, 2.0)
+            module.weight.data.uniform_(0.5, 1.5), module.bias.data.uniform_(-0.2, 0.2)
+    torch.nn.init.normal_(stage.net[-1].weight)
+    cost = torch.rand(1, 8 * 4, 12, 16) * 2 - 1
+    with torch.no_grad():
+        batched, grouped = stage.eval()(cost, 8), stage.grouped(cost, 8)
+    assert grouped.shape == batched.shape == (1, 8, 12, 16) and float(batched.abs().max()) > 0.1
+    assert torch.allclose(grouped, batched, atol=1e-5)
