@@ -28,8 +28,11 @@ DESIGNS = {
     "cadenet2d (192 levels)": {"architecture": "cadenet2d", "levels": 192},
     "cadenet2d + per-disparity aggregation (the campaign)": {"architecture": "cadenet2d", "levels": 192,
                                                               "slice_channels": 4},
-    "cadenet2d f16 w32 h8, 128 levels (session 20's fast design)": {
+    "cadenet2d f16 w32 h8, 128 levels, no per-disparity stage": {
         "architecture": "cadenet2d", "levels": 128, "features2d": 16, "width2d": 32, "half_channels": 8},
+    "cadenet2d f16 w32 h8, 128 levels (session 20's fast design)": {
+        "architecture": "cadenet2d", "levels": 128, "features2d": 16, "width2d": 32, "half_channels": 8,
+        "slice_channels": 4},
 }
 
 
