@@ -330,3 +330,22 @@ def test_a_ground_rises_from_its_horizon_to_the_bottom_and_its_views_agree(seed)
     checked[: height // 2] = False  # the ground's part of the view
     assert checked.mean() > 0.2
     assert np.median(error[checked]) < 0.01
+
+
+def test_the_z_buffer_textures_each_layer_only_where_it_shows_with_the_values_of_a_whole_view():
+    from cade_cli.train.scenes import Layer, _composite
+
+    rng = np.random.default_rng(3)
+    height, width = 40, 64
+    y, x = np.mgrid[0:height, 0:width].astype(np.float64)
+    texture = rng.random((50, 70, 3)).astype(np.float32)
+    mapping = np.array([[0.9, -0.2, 3.0], [0.2, 0.9, 5.0]])
+    layers = [Layer((5.0, 0.0, 0.0), None, texture, mapping),
+              Layer((12.0, 0.01, 0.0), lambda u, v: (u - 20) ** 2 + (v - 15) ** 2 < 80, texture[::-1].copy(), mapping),
+              Layer((9.0, 0.0, 0.02), lambda u, v: (u > 40) & (v > 25), texture[:, ::-1].copy(), mapping)]
+    columns = [x + layer.plane[0] * 0.1 for layer in layers]  # each layer sampled at its own columns
+    image, best, index = _composite(layers, columns, y)
+    assert set(np.unique(index)) == {0, 1, 2}
+    expected = np.stack([layer.colour(column, y) for layer, column in zip(layers, columns)])[index, y.astype(int),
+                                                                                         x.astype(int)]
+    assert np.array_equal(image, expected)

@@ -16,6 +16,7 @@ other. No torch here: this module is plain NumPy/OpenCV and is tested like the r
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -157,11 +158,19 @@ class TexturePool:
         return np.ascontiguousarray(texture)
 
 
+@functools.lru_cache(maxsize=4)
+def _grid(size: int) -> np.ndarray:
+    """(2, size, size) float32 row and column indices, made once per size (read-only)."""
+    grid = np.mgrid[0:size, 0:size].astype(np.float32)
+    grid.flags.writeable = False
+    return grid
+
+
 def procedural_texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
     """A (size, size, 3) float32 texture in [0, 1]: multi-scale noise, stripes, a smooth
     gradient, coloured patches or a checkerboard, with random colours."""
     kind = rng.choice(["noise", "stripes", "gradient", "patches", "checker"], p=[0.35, 0.15, 0.15, 0.25, 0.1])
-    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    yy, xx = _grid(size)
     if kind == "noise":
         value = np.zeros((size, size), np.float32)
         for level in range(rng.integers(1, 5)):
@@ -261,8 +270,10 @@ def _composite(layers: list[Layer], columns: list[np.ndarray], y: np.ndarray) ->
     image = np.zeros(y.shape + (3,), np.float32)
     for i, (layer, x) in enumerate(zip(layers, columns)):
         where = index == i
-        if where.any():
-            image[where] = layer.colour(x, y)[where]
+        rows, cols = np.flatnonzero(where.any(axis=1)), np.flatnonzero(where.any(axis=0))
+        if rows.size:  # texture only the box the layer shows in (remap reads each pixel alone: same values)
+            box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+            image[box][where[box]] = layer.colour(x[box], y[box])[where[box]]
     return image, best, index
 
 
