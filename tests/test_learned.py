@@ -153,8 +153,8 @@ def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
     pair = render_pair(rng, (96, 160), background=(6.0, 0.0), foreground=(21.0, 0.0))
     result = CADE(pair.left, pair.right, max_disp=32)
     assert pair.occluded.sum() > 100
-    # background side (6 px; the foreground side would be 15 px off): cade-v4 0.51 px, cade-v10 0.88
-    # on this pair (cade-v9, the shipped model for an hour of session 19: 1.23)
+    # background side (6 px; the foreground side would be 15 px off): cade-v4 0.51 px, cade-v11 0.80
+    # on this pair (cade-v10 0.88; cade-v9, the shipped model for an hour of session 19: 1.23)
     assert np.median(np.abs(dense(result) - pair.disparity)[pair.occluded]) < 2.0
     assert result.valid[pair.reliable].mean() > 0.95
     # invalid: the left border (matches leave the right view) and around the occlusion
@@ -173,7 +173,7 @@ def test_negative_range_by_pre_shifting(rng):
 
 def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
     """A card with several range variants (cade-v4's: 96 ... 256 levels of the same 3D weights)
-    runs the widest at full size for a span it covers; a CadeNet2D card (cade-v10) has one."""
+    runs the widest at full size for a span it covers; a CadeNet2D card (cade-v11) has one."""
     card = read_card("cade-v4")
     narrow, wide = card.variants[-2].levels, card.variants[-1].levels
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))

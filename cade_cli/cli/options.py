@@ -49,7 +49,7 @@ MinDispAutoOption = Annotated[
 ModelOption = Annotated[
     Optional[str],
     typer.Option("--model", help="Network of the learned methods: a tier, fast (the default) or accurate (both "
-                 "cade-v10 for now; models/cade-v10.md), a shipped card's name (cade-v4, cade-v6: the models "
+                 "cade-v11 for now; models/cade-v11.md), a shipped card's name (cade-v4, cade-v6: the models "
                  "before), the path of a "
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
