@@ -394,3 +394,16 @@ def test_a_second_scale_starts_at_the_quarter_estimate_and_exports(tmp_path: Pat
     path = tmp_path / "net.onnx"
     export_onnx(net, path)
     assert verify_onnx(net, path, sizes=((40, 56), (72, 200))) < 1e-3
+
+
+def test_validation_scores_a_downscaled_pair_in_the_scenes_px_over_all_its_pixels():
+    from cade_cli.train.validation import at_truth_scale, evaluate
+
+    half = np.full((4, 6), 10.0, np.float32)  # a pair run at half size: 10 px there
+    truth = np.full((8, 12), 21.0, np.float32)  # 21 px at the scene's size
+    brought = at_truth_scale(half, truth)
+    assert brought.shape == (8, 12) and np.allclose(brought, 20.0)
+    epe, bad3 = evaluate(_EchoNet(), [(half, half, truth)], "cpu")
+    assert epe == pytest.approx(1.0) and bad3 == 0.0  # 1 px of the scene, on all 96 of its pixels
+    same = np.full((8, 12), 3.0, np.float32)
+    assert at_truth_scale(same, truth) is same

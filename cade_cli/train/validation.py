@@ -34,7 +34,11 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     ``*-cs``) and, with ``config.validate_rgb``, in the same-band tasks R>R, G>G and B>B
     pooled (``*-rgb``; the benchmark's RGB protocol merges them by median instead), downscaled
     by powers of 2 until the scene's range fits the model, each band given as the runtime
-    gives it to a network of this mode (:func:`~cade_cli.spectral.network_input`)."""
+    gives it to a network of this mode (:func:`~cade_cli.spectral.network_input`). The ground
+    truth stays at the scene's resolution: :func:`evaluate` scores a downscaled scene's map
+    brought back to it, in the scene's px, over all its pixels (until session 20 it scored it
+    at the downscaled size, in those px: a 128-level network's Jadeplant, run at half size,
+    counted an eighth of what a 192-level network's did)."""
     import cv2
 
     from cade_cli.errors import CadeError
@@ -63,7 +67,7 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
                 scale = pyramid_factor(scene.max_disp, config.levels - RANGE_MARGIN)  # as the runtime does
                 size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
                 left, right = (cv2.resize(view, size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
-                gt = cv2.resize(scene.disparity, size, interpolation=cv2.INTER_NEAREST) / scale
+                gt = scene.disparity
                 for tasks, pairs in ((((0, 2), (2, 0)), cross), (((0, 0), (1, 1), (2, 2)), same)):
                     pairs.extend((network_input(left[..., a], kind), network_input(right[..., b], kind), gt)
                                  for a, b in tasks)
@@ -73,10 +77,22 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     return sets
 
 
+def at_truth_scale(disparity: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """A map of a downscaled pair brought to the ground truth's size and px (bilinear, times
+    the scale); a map of the truth's size as it is."""
+    import cv2
+
+    if disparity.shape == gt.shape:
+        return disparity
+    scale = gt.shape[1] / disparity.shape[1]
+    return cv2.resize(disparity, (gt.shape[1], gt.shape[0]), interpolation=cv2.INTER_LINEAR) * np.float32(scale)
+
+
 def evaluate(net: torch.nn.Module, pairs, device: str) -> tuple[float, float]:
     """EPE (px) and bad-3 (%) over all pixels with finite ground truth of all ``pairs``
     together (pooled: each pixel weighs the same), with the benchmark's metrics."""
-    predictions, truths = zip(*((predict(net, left, right, device).ravel(), gt.ravel()) for left, right, gt in pairs))
+    predictions, truths = zip(*((at_truth_scale(predict(net, left, right, device), gt).ravel(), gt.ravel())
+                                for left, right, gt in pairs))
     prediction, gt = np.concatenate(predictions)[None], np.concatenate(truths)[None]  # one (1, N) map
     everywhere = np.ones(gt.shape, bool)  # the metrics skip pixels without GT themselves
     return end_point_error(prediction, gt, everywhere), bad_pixel_rate(prediction, gt, everywhere, threshold=3.0)
