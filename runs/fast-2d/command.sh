@@ -5,6 +5,8 @@
 # channels (campaign 32), U-Net width 32 (48), 1/2 refinement 8 channels (16), the per-disparity stage
 # as the campaign's (4 channels), 128 levels (192). Data and schedule as the campaign's, with its
 # ground from the start. runs/fast-2d-no-slices: the same without the per-disparity stage (stopped).
+# log.csv's Middlebury 2014 rows up to step 3,000 were scored before validation brought a pyramid
+# level's map back to the scene's px (commit 43e1b81): they flatter this 128-level design (Jadeplant).
 # Threads: 2 when it trains alone; beside another training process on this 2-core machine, run it as
 # OMP_NUM_THREADS=1 command.sh --threads 1 (session 20: two 2-thread processes spun on each other, the
 # campaign took 7.5 CPU-s a step instead of 1.3, about 5x slower for both).
