@@ -31,9 +31,15 @@ def _box(image: np.ndarray, side: int) -> np.ndarray:
     return cv2.blur(image.astype(np.float32), (side, side), borderType=cv2.BORDER_REFLECT)
 
 
-def _spread(image: np.ndarray, side: int) -> np.ndarray:
-    mean = _box(image, side)
-    return np.sqrt(np.maximum(_box(image * image, side) - mean * mean, 0))
+def _moments(image: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The box means of ``image`` and of its square (the spread is taken per pixel later)."""
+    image = image.astype(np.float32)
+    return _box(image, side), _box(image * image, side)
+
+
+def _spread(moments: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    mean, square = moments
+    return np.sqrt(np.maximum(square - mean * mean, 0))
 
 
 def disputed(network: np.ndarray, candidate: np.ndarray, accepted: np.ndarray) -> np.ndarray:
@@ -46,39 +52,46 @@ def chooser_features(left: np.ndarray, network: np.ndarray, uncertainty: np.ndar
     """(H, W, len(FEATURES)) float32 features of each pixel (:data:`FEATURES`), or
     (N, len(FEATURES)) of the N pixels of the (H, W) bool mask ``where``.
 
+    Neighbourhood statistics (box means, the median) need whole images; everything
+    per-pixel after them is computed at the ``where`` pixels only (the same values, a third
+    of the chooser's time on a Middlebury pair).
+
     Args:
         left: (H, W) raw left band, any units (only its local contrast relative to its
             image-wide spread is used).
         network, uncertainty: the network's (H, W) disparity and uncertainty, px.
         candidate, accepted: SGBM's (H, W) match (px) and where SGBM accepted it.
     """
+    if where is None:
+        def pick(image):
+            return np.asarray(image)
+    else:
+        index = np.flatnonzero(where)
+
+        def pick(image):
+            return np.asarray(image).ravel()[index]
     accepted = accepted.astype(bool)
     difference = np.where(accepted, np.abs(candidate - network), 0).astype(np.float32)
     agree = (accepted & (difference <= 3)).astype(np.float32)
     held = np.where(accepted, candidate, network).astype(np.float32)
     band = left.astype(np.float32)
-    texture = _spread(band, 7) / max(float(band.std()), 1e-6)
+    median = cv2.medianBlur(held, 5)
+    picked_difference, picked_held = pick(difference), pick(held)
     planes = [
-        np.minimum(difference, 64) / 32,
-        np.clip(np.where(accepted, candidate - network, 0), -64, 64) / 32,
-        np.log1p(difference),
-        np.minimum(uncertainty, 32) / 8,
-        _box(accepted, 9),
-        np.minimum(_spread(held, 5), 32) / 8,
-        np.minimum(np.abs(held - cv2.medianBlur(held, 5)), 32) / 8,
-        np.minimum(_spread(network, 5), 32) / 8,
-        np.minimum(texture, 4),
-        _box(agree, 9),
-        _box(agree, 31),
-        np.ones_like(band),
+        np.minimum(picked_difference, 64) / 32,
+        np.clip(np.where(pick(accepted), pick(candidate) - pick(network), 0), -64, 64) / 32,
+        np.log1p(picked_difference),
+        np.minimum(pick(uncertainty), 32) / 8,
+        pick(_box(accepted, 9)),
+        np.minimum(_spread([pick(m) for m in _moments(held, 5)]), 32) / 8,
+        np.minimum(np.abs(picked_held - pick(median)), 32) / 8,
+        np.minimum(_spread([pick(m) for m in _moments(network, 5)]), 32) / 8,
+        np.minimum(_spread([pick(m) for m in _moments(band, 7)]) / max(float(band.std()), 1e-6), 4),
+        pick(_box(agree, 9)),
+        pick(_box(agree, 31)),
+        np.ones_like(picked_held),
     ]
-    if where is None:
-        return np.stack(planes, axis=-1).astype(np.float32)
-    index = np.flatnonzero(where)
-    features = np.empty((index.size, len(planes)), np.float32)
-    for column, plane in enumerate(planes):
-        features[:, column] = np.asarray(plane, np.float32).ravel()[index]
-    return features
+    return np.stack([np.asarray(plane, np.float32) for plane in planes], axis=-1)
 
 
 @dataclass(frozen=True)
