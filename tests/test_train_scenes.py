@@ -210,6 +210,26 @@ def test_shapes_include_thin_structures_and_holes():
     assert thin >= 10 and holed >= 2
 
 
+def test_an_outline_evaluated_in_its_box_is_the_outline_evaluated_everywhere():
+    """The renderer evaluates an outline only in the box of the grid its reach bound allows
+    (shapes.within); evaluated point by point (1-D, no box) it must give the same mask, on
+    the left view's grid and on a right view's sheared, misaligned one, for every kind of
+    outline, including those that reach past the view's edge."""
+    y, x = np.mgrid[0:96, 0:160].astype(np.float32)
+    sheared = (x + 7.5 + 0.2 * y) / 0.9
+    rows = y + 0.6 * np.sin(x / 23.0)
+    rng = np.random.default_rng(4)
+    covered = 0
+    for _ in range(300):
+        shape = random_shape(rng, 96, 160)
+        for grid_x, grid_y in ((x, y), (sheared, rows)):
+            boxed = shape(grid_x, grid_y)
+            everywhere = shape(grid_x.ravel(), grid_y.ravel()).reshape(grid_x.shape)
+            np.testing.assert_array_equal(boxed, everywhere)
+            covered += bool(everywhere.any()) and not everywhere.all()
+    assert covered > 300  # most outlines show, and none covers everything
+
+
 def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_path):
     """A real scene in the MiddEval3 layout (a texture shifted by 5 px) comes out at the
     training size with its disparity scaled by the zoom, and the right view warped by it

@@ -204,7 +204,15 @@ def procedural_texture(rng: np.random.Generator, size: int = 384) -> np.ndarray:
         value = ((np.floor(xx / period) + np.floor(yy / period)) % 2).astype(np.float32)
     value = (value - value.min()) / max(float(value.max() - value.min()), 1e-6)
     low, high = rng.random(3).astype(np.float32), rng.random(3).astype(np.float32)
-    return (low + value[..., None] * (high - low)).astype(np.float32)
+    return _colourised(value, low, high)
+
+
+def _colourised(value: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(h, w, 3) float32 ``low + value * (high - low)`` for a (h, w) ``value`` in [0, 1]: channel
+    by channel on contiguous planes, then interleaved (the same float32 values as the broadcast,
+    at a third of its time)."""
+    value, step = np.asarray(value, np.float32), high - low
+    return cv2.merge([value * step[channel] + low[channel] for channel in range(3)])
 
 
 @dataclass(frozen=True)
@@ -273,7 +281,7 @@ def _composite(layers: list[Layer], columns: list[np.ndarray], y: np.ndarray) ->
         rows, cols = np.flatnonzero(where.any(axis=1)), np.flatnonzero(where.any(axis=0))
         if rows.size:  # texture only the box the layer shows in (remap reads each pixel alone: same values)
             box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
-            image[box][where[box]] = layer.colour(x[box], y[box])[where[box]]
+            np.copyto(image[box], layer.colour(x[box], y[box]), where=where[box][..., None])
     return image, best, index
 
 
@@ -367,12 +375,17 @@ def camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometric
     gamma = rng.uniform(*photometric.gamma)
     sigma = rng.uniform(*photometric.blur_sigma)
     noise = rng.uniform(*photometric.noise_sigma)
-    out = np.clip(image * gain, 0.0, 1.0) ** np.float32(gamma)
+    out = np.clip(image * gain, 0.0, 1.0)
+    np.power(out, np.float32(gamma), out=out)
     if sigma > 0.05:
         out = cv2.GaussianBlur(out, (0, 0), sigma)
     if noise > 0:
-        out = out + noise * rng.standard_normal(out.shape).astype(np.float32)
-    out = np.clip(out, 0.0, 1.0)
+        drawn = rng.standard_normal(out.shape).astype(np.float32)
+        drawn *= np.float32(noise)  # noise * drawn: a float32 array times a Python float stays float32
+        out += drawn
+    np.clip(out, 0.0, 1.0, out=out)
     if rng.random() < photometric.quantized_share:
-        out = np.rint(out * 255.0) / 255.0
-    return out.astype(np.float32)
+        out *= np.float32(255.0)
+        np.rint(out, out=out)
+        out /= np.float32(255.0)
+    return out

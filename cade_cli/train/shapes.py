@@ -10,6 +10,29 @@ from typing import Callable
 import numpy as np
 
 Shape = Callable[[np.ndarray, np.ndarray], np.ndarray]
+MARGIN = 2.0
+"""px added to a shape's reach before pixels beyond it are skipped (rounding at the edge)."""
+
+
+def within(inside: Shape, cx: float, cy: float, reach: float) -> Shape:
+    """``inside`` evaluated only in the box of the (H, W) grid that comes within ``reach`` px
+    (a bound on the outline's extent, plus :data:`MARGIN`) of (``cx``, ``cy``) along both axes,
+    and False beyond it: the same mask, without the trigonometry over the whole view for an
+    object that covers a corner of it. Arrays that are not (H, W) grids are evaluated whole."""
+    reach += MARGIN
+
+    def bounded(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        if np.ndim(x) != 2:
+            return inside(x, y)
+        near = (np.abs(x - cx) < reach) & (np.abs(y - cy) < reach)
+        rows, cols = np.flatnonzero(near.any(axis=1)), np.flatnonzero(near.any(axis=0))
+        covered = np.zeros(np.shape(x), bool)
+        if rows.size:
+            box = np.s_[rows[0]:rows[-1] + 1, cols[0]:cols[-1] + 1]
+            covered[box] = inside(x[box], y[box])
+        return covered
+
+    return bounded
 
 
 def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
@@ -41,7 +64,8 @@ def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
             rho = radius * (1 + sum(a * np.cos(k * theta + p) for k, a, p in harmonics))
             return u * u + v * v < rho * rho
 
-        return blob
+        # rho <= radius (1 + sum of the harmonics' amplitudes); the aspect only shrinks the extent
+        return within(blob, cx, cy, radius * (1 + sum(a for _, a, _ in harmonics)))
     if kind == "branch":
         half_width = rng.uniform(0.5, 4.0)
         points = [(cx, cy)]
@@ -60,7 +84,7 @@ def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
                 inside |= (x - x0 - t * dx) ** 2 + (y - y0 - t * dy) ** 2 < half_width * half_width
             return inside
 
-        return branch
+        return within(branch, cx, cy, max(math.hypot(px - cx, py - cy) for px, py in points) + half_width)
     half_w, half_h = radius, radius * rng.uniform(0.2, 1.0)
     if kind == "lattice":
         period = rng.uniform(8.0, 40.0)
@@ -71,10 +95,10 @@ def random_shape(rng: np.random.Generator, height: int, width: int) -> Shape:
             bars = (np.mod(u + half_w, period) < bar) | (np.mod(v + half_h, period) < bar)
             return (np.abs(u) < half_w) & (np.abs(v) < half_h) & bars
 
-        return lattice
+        return within(lattice, cx, cy, math.hypot(half_w, half_h))
 
     def rectangle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
         u, v = frame(x, y)
         return (np.abs(u) < half_w) & (np.abs(v) < half_h)
 
-    return rectangle
+    return within(rectangle, cx, cy, math.hypot(half_w, half_h))
