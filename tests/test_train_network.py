@@ -14,7 +14,7 @@ torch = pytest.importorskip("torch")
 from cade_cli.train.batches import GeneratedBatches
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
-from cade_cli.train.fit import learning_rate, train  # noqa: E402
+from cade_cli.train.fit import average_checkpoints, learning_rate, train  # noqa: E402
 from cade_cli.train.model import (  # noqa: E402
     LEGACY_DESIGN,
     CadeNet,
@@ -202,6 +202,42 @@ def test_checkpoints_keep_their_design_through_fine_tuning_and_export(tmp_path: 
                               "aggregation": "3d", "second_scale": False}
     assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
     assert card["output"] == "disparity" and card["architecture"].endswith("full-res refinement")
+
+
+def test_a_soup_is_the_mean_of_its_checkpoints_weights_and_exports(tmp_path: Path):
+    """Two nets of one design (different weights and BatchNorm statistics) average key by key;
+    the integer buffers stay the first's; another design is refused; the soup exports."""
+    paths = []
+    for seed in (1, 2):
+        torch.manual_seed(seed)
+        net = CadeNet(levels=16)
+        with torch.no_grad():  # every weight and BatchNorm statistic differs between the two
+            for tensor in net.state_dict().values():
+                if tensor.is_floating_point():
+                    tensor.uniform_(0.5, 1.5)
+        config = TrainConfig(out="run", textures=[], levels=16)
+        torch.save({"model": net.state_dict(), "config": dataclasses.asdict(config), "step": 500, "elapsed_s": 0.0},
+                   tmp_path / f"{seed}.pt")
+        paths.append(tmp_path / f"{seed}.pt")
+    first, second = (torch.load(path, weights_only=False)["model"] for path in paths)
+    soup = average_checkpoints(paths)
+    assert soup["optimizer"] is None and soup["step"] == 500
+    for key, value in soup["model"].items():
+        if value.is_floating_point():
+            torch.testing.assert_close(value, (first[key] + second[key]) / 2)
+            assert not torch.equal(value, first[key])
+        else:
+            assert torch.equal(value, first[key])
+    other = TrainConfig(out="run", textures=[], levels=24)
+    torch.save({"model": CadeNet(levels=24, channels3d=16).state_dict(), "config": dataclasses.asdict(other)},
+               tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="another design"):
+        average_checkpoints([paths[0], tmp_path / "other.pt"])
+    with pytest.raises(ValueError, match="at least two"):
+        average_checkpoints(paths[:1])
+    torch.save(soup, tmp_path / "soup.pt")
+    card = export_checkpoint(tmp_path / "soup.pt", tmp_path / "soup.onnx", tmp_path / "soup.json", other_ranges=())
+    assert card["onnx_vs_torch_max_abs_diff"] < 1e-3
 
 
 class _EchoNet(torch.nn.Module):

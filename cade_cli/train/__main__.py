@@ -1,4 +1,4 @@
-"""``python -m cade_cli.train fit|export``: train CadeNet on generated CADE pairs, export ONNX."""
+"""``python -m cade_cli.train fit|export|soup|...``: train CadeNet on generated CADE pairs, export ONNX."""
 
 from __future__ import annotations
 
@@ -200,6 +200,26 @@ def curves(
         chain[folder.name] = curve
     plot(list(chain.values()), output)
     print(f"wrote {output}")
+
+
+@app.command()
+def soup(
+    checkpoints: Annotated[list[Path], typer.Argument(exists=True, dir_okay=False, help="Runs' last.pt, "
+                                                      "fine-tuned from one initialisation.")],
+    out: Annotated[Path, typer.Option(help="Where to write the averaged checkpoint (export it with `export`).")],
+) -> None:
+    """Average the weights of CHECKPOINTS of one design into one checkpoint (a uniform model soup)."""
+    import torch
+
+    from cade_cli.train.fit import average_checkpoints
+
+    try:
+        averaged = average_checkpoints(checkpoints)
+    except ValueError as error:
+        raise typer.BadParameter(str(error), param_hint="CHECKPOINTS") from None
+    out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(averaged, out)
+    print(f"wrote {out}: the mean of {len(checkpoints)} checkpoints")
 
 
 @app.command()

@@ -180,3 +180,27 @@ def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, confi
     torch.save({"model": net.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "elapsed_s": elapsed,
                 "cpu_s": cpu, "config": asdict(config), "torch_rng": torch.get_rng_state()}, temporary)
     os.replace(temporary, path)
+
+
+def average_checkpoints(paths: list[Path]) -> dict:
+    """A checkpoint whose weights are the mean of ``paths``' (a uniform "model soup",
+    Wortsman et al., ICML 2022: fine-tunes of one initialisation average into one model);
+    BatchNorm's running statistics are averaged too, integer buffers taken from the first.
+    The result has the first checkpoint's config and step and no optimiser state (export it;
+    do not resume from it).
+
+    Raises:
+        ValueError: fewer than two checkpoints, or checkpoints of different designs.
+    """
+    if len(paths) < 2:
+        raise ValueError("a soup needs at least two checkpoints")
+    checkpoints = [torch.load(path, map_location="cpu", weights_only=False) for path in paths]
+    first = checkpoints[0]
+    for path, checkpoint in zip(paths[1:], checkpoints[1:]):
+        if checkpoint["model"].keys() != first["model"].keys() or any(
+                checkpoint["model"][key].shape != value.shape for key, value in first["model"].items()):
+            raise ValueError(f"{path} holds another design than {paths[0]}")
+    model = {key: (torch.stack([c["model"][key] for c in checkpoints]).mean(0) if value.is_floating_point() else value)
+             for key, value in first["model"].items()}
+    return {**first, "model": model, "optimizer": None, "soup_of": [str(path) for path in paths]}
+
