@@ -43,6 +43,7 @@ DESIGNS = {
     "f16 w32 h8, 128 levels (the fast design)": {**CAMPAIGN, "features2d": 16, "width2d": 32, "half_channels": 8,
                                                  "levels": 128},
     "f16 w32 h8, 96 levels": {**CAMPAIGN, "features2d": 16, "width2d": 32, "half_channels": 8, "levels": 96},
+    "f16 w32 h8, 192 levels": {**CAMPAIGN, "features2d": 16, "width2d": 32, "half_channels": 8},
     "f24 w32 h8, 128 levels, no slices": {**CAMPAIGN, "features2d": 24, "width2d": 32, "half_channels": 8,
                                           "levels": 128, "slice_channels": 0},
     "f32 w64 (wider)": {**CAMPAIGN, "width2d": 64},
