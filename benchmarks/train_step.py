@@ -33,6 +33,9 @@ DESIGNS = {
     "cadenet2d f16 w32 h8, 128 levels (session 20's fast design)": {
         "architecture": "cadenet2d", "levels": 128, "features2d": 16, "width2d": 32, "half_channels": 8,
         "slice_channels": 4},
+    "cadenet2d f16 w32 h8, 192 levels (the fast design from session 21)": {
+        "architecture": "cadenet2d", "levels": 192, "features2d": 16, "width2d": 32, "half_channels": 8,
+        "slice_channels": 4},
 }
 
 

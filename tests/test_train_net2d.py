@@ -14,7 +14,13 @@ torch = pytest.importorskip("torch")
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
 from cade_cli.train.fit import train  # noqa: E402
-from cade_cli.train.net2d import DIVISOR2D, CadeNet2D, HalfRefinement, normalised_correlation  # noqa: E402
+from cade_cli.train.net2d import (  # noqa: E402
+    DIVISOR2D,
+    CadeNet2D,
+    HalfRefinement,
+    normalised_correlation,
+    with_more_levels,
+)
 from cade_cli.train.networks import network_of  # noqa: E402
 from cade_cli.train.validation import predict
 
@@ -264,3 +270,42 @@ def test_the_exported_per_disparity_stage_is_one_grouped_convolution_a_layer_wit
         batched, grouped = stage.eval()(cost, 8), stage.grouped(cost, 8)
     assert grouped.shape == batched.shape == (1, 8, 12, 16) and float(batched.abs().max()) > 0.1
     assert torch.allclose(grouped, batched, atol=1e-5)
+
+
+def test_a_net_widened_to_more_levels_scores_the_old_disparities_as_the_checkpoint_did(tmp_path: Path):
+    """with_more_levels: the 64-level net's weights in a 128-level twin give the same
+    aggregation logits for disparities 0..15 of the 1/4 level (every weight random, so a
+    misplaced feature or disparity channel shows) and zeros for the new ones before the
+    prior; a run started with --init-partial from the narrower checkpoint loads them."""
+    torch.manual_seed(3)
+    design = dict(features=8, width=16, half_channels=8, slice_channels=4)
+    narrow, wide = CadeNet2D(levels=64, **design), CadeNet2D(levels=128, **design)
+    with torch.no_grad():
+        for name, tensor in narrow.state_dict().items():
+            if name.endswith("running_var"):
+                tensor.uniform_(0.5, 1.5)
+            elif tensor.is_floating_point():
+                tensor.normal_(0.0, 0.3)
+    wide.load_state_dict(with_more_levels(narrow.state_dict(), wide))
+    narrow.eval(), wide.eval()
+    left, right = torch.rand(1, 1, 64, 96), torch.rand(1, 1, 64, 96)
+    with torch.no_grad():
+        (_, feat_left), (_, feat_right) = narrow.features(left), narrow.features(right)
+        logits = {}
+        for net in (narrow, wide):
+            cost = normalised_correlation(feat_left, feat_right, net.coarse_levels, net.groups)
+            logits[net.coarse_levels] = net.aggregation(torch.cat([cost, feat_left], dim=1))
+    assert logits[32].shape[1] == 32 and logits[16].abs().mean() > 0.01
+    torch.testing.assert_close(logits[32][:, :16], logits[16], atol=1e-5, rtol=1e-5)
+    assert torch.all(logits[32][:, 16:] == 0)
+    with pytest.raises(ValueError, match="fewer levels"):
+        with_more_levels(CadeNet2D(levels=64, features=16, width=16).state_dict(), wide)
+    config = TrainConfig(out=str(tmp_path / "narrow"), textures=[], levels=64, architecture="cadenet2d")
+    torch.save({"model": narrow.state_dict(), "config": config.__dict__ | {"features2d": 8, "width2d": 16,
+                "half_channels": 8, "slice_channels": 4}}, tmp_path / "narrow.pt")
+    run = TrainConfig(out=str(tmp_path / "wide"), textures=[], steps=1, batch=1, height=64, width=128, levels=128,
+                      workers=0, architecture="cadenet2d", features2d=8, width2d=16, half_channels=8, slice_channels=4,
+                      init=str(tmp_path / "narrow.pt"), init_partial=True)
+    trained = torch.load(train(run), weights_only=False)["model"]
+    assert trained["aggregation.entry.0.weight"].shape[1] == 4 * 32 + 8
+

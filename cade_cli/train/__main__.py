@@ -57,7 +57,8 @@ def fit(
     second_scale: Annotated[bool, typer.Option(help="A 1/2-resolution stage: a local cost volume +-8 px around "
                                                "the 1/4 level's estimate, decided by a 2D CNN.")] = False,
     init_partial: Annotated[bool, typer.Option(help="With --init: load only the tensors whose shapes fit "
-                                               "(a wider 3D part starts fresh).")] = False,
+                                               "(a wider 3D part starts fresh; a CadeNet2D with more levels keeps the old "
+                                               "disparities' weights, net2d.with_more_levels).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
     training_mode: Annotated[str, typer.Option(help="cade (11 bands + the color agnostic transform; every shipped "
                                                "model), csdl (the 4 weighted-sum bands + noise, no transform) or "

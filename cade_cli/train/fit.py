@@ -21,6 +21,7 @@ import torch.nn.functional as F
 from cade_cli.train.batches import GeneratedBatches, parse_crop_schedule
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.model import adapt_state_dict, parameter_count, transferable
+from cade_cli.train.net2d import CadeNet2D, fewer_levels, with_more_levels
 from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES
 from cade_cli.train.validation import evaluate, validation_sets
@@ -132,7 +133,9 @@ def restore(net: torch.nn.Module, optimizer, config: TrainConfig, checkpoint: Pa
         return state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
     if config.init:
         initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
-        if config.init_partial:
+        if config.init_partial and isinstance(net, CadeNet2D) and fewer_levels(initial, net):
+            net.load_state_dict(with_more_levels(initial, net))
+        elif config.init_partial:
             net.load_state_dict(transferable(initial, net), strict=False)
         else:
             net.load_state_dict(adapt_state_dict(initial, net))

@@ -250,3 +250,39 @@ class CadeNet2D(nn.Module):
         if refine:
             out["disparity"] = half_estimate if self.refinement is None else self.refinement(half_estimate, left)
         return out
+
+
+def fewer_levels(state: dict[str, torch.Tensor], net: CadeNet2D) -> bool:
+    """Whether ``state`` is a CadeNet2D's with fewer levels than ``net`` (its aggregation scores
+    fewer disparities)."""
+    bias = state.get("aggregation.exit.bias")
+    return bias is not None and bias.shape[0] < net.coarse_levels
+
+
+def with_more_levels(state: dict[str, torch.Tensor], net: CadeNet2D) -> dict[str, torch.Tensor]:
+    """The weights of a CadeNet2D trained with fewer levels (``state``), laid out for ``net``
+    (more levels, otherwise the same design): the aggregation's entry keeps its weights for
+    the old disparities' correlation channels and for the features, which now come after more
+    disparities, and gets zeros for the new disparities; its exit keeps its rows for the old
+    disparities and gets zeros (its initial value) for the new ones. So ``net`` scores the old
+    disparities exactly as the checkpoint did and the new ones by the correlation prior and the
+    per-disparity stage alone, until training teaches it more. Every other tensor is copied.
+
+    Raises:
+        ValueError: ``state`` is not a narrower-range twin of ``net``.
+    """
+    target = net.state_dict()
+    entry, exit_weight, exit_bias = "aggregation.entry.0.weight", "aggregation.exit.weight", "aggregation.exit.bias"
+    features = net.design["features"]
+    old_levels, new_levels = state[exit_bias].shape[0], net.coarse_levels
+    others = [key for key in target if key not in (entry, exit_weight, exit_bias)]
+    if old_levels >= new_levels or any(key not in state or state[key].shape != target[key].shape for key in others):
+        raise ValueError("the checkpoint is not the same design with fewer levels")
+    old_cost, new_cost = net.groups * old_levels, net.groups * new_levels
+    widened = torch.zeros_like(target[entry])
+    widened[:, :old_cost] = state[entry][:, :old_cost]  # disparity-major: the old disparities come first
+    widened[:, new_cost:new_cost + features] = state[entry][:, old_cost:old_cost + features]
+    rows, bias = torch.zeros_like(target[exit_weight]), torch.zeros_like(target[exit_bias])
+    rows[:old_levels], bias[:old_levels] = state[exit_weight], state[exit_bias]
+    return {**{key: state[key] for key in others}, entry: widened, exit_weight: rows, exit_bias: bias}
+
