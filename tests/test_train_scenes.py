@@ -294,6 +294,15 @@ def test_learning_curves_chain_runs_by_their_init_and_draw_one_picture(tmp_path)
                                     "100,9,,,,middlebury14Q-rgb,2.0,12,7200\n")
     runs["c"] = read_run(folder, runs)
     assert runs["c"].points["middlebury14Q-rgb"] == [(100, 2.0, 12.0, 2.0)]  # CPU-hours
+    # a run stopped at step 60 of its 1,000 hands step 60 and its CPU-hours on to its child
+    for name, init, log in (("d", "c", "60,9,1e-3,1,1,train,,,3600\n"), ("e", "d", "40,9,,,,middlebury05-cs,3,20,1800\n")):
+        folder = tmp_path / name
+        folder.mkdir()
+        (folder / "config.json").write_text(json.dumps({"steps": 1000, "init": str(tmp_path / init / "last.pt")}))
+        (folder / "log.csv").write_text("step,elapsed_s,lr,loss,train_epe,set,val_epe,val_bad3,cpu_s\n" + log)
+        runs[name] = read_run(folder, runs)
+    assert (runs["d"].start, runs["d"].steps, runs["d"].cpu_hours) == (100, 60, 3.0)
+    assert runs["e"].points["middlebury05-cs"] == [(200, 3.0, 20.0, 3.5)]
     pytest.importorskip("matplotlib")
     plot(list(runs.values()), tmp_path / "curves.png")
     assert (tmp_path / "curves.png").stat().st_size > 10_000

@@ -26,23 +26,30 @@ class RunCurve:
     start: int
     steps: int
     points: dict[str, list[tuple[int, float, float, float | None]]] = field(default_factory=dict)
-    """set -> [(step from the chain's start, EPE, bad-3 %, CPU-hours of this run or None)]:
+    """set -> [(step from the chain's start, EPE, bad-3 %, CPU-hours over the chain or None)]:
     CPU-hours from the log's ``cpu_s`` (logs since Accuracy III), the training process's
-    CPU time, all threads."""
+    CPU time, all threads, added to the ancestors' last."""
+    cpu_hours: float = 0.0
+    """CPU-hours over the chain at the run's last logged step."""
 
 
 def read_run(folder: Path, runs: dict[str, RunCurve]) -> RunCurve:
-    """The curve of the run in ``folder``; its ancestors (``init``) must be in ``runs``."""
+    """The curve of the run in ``folder``; its ancestors (``init``) must be in ``runs``. A run
+    ends at its last logged step (a run stopped early hands that step on to its children)."""
     config = json.loads((folder / "config.json").read_text())
-    parent = Path(config["init"]).parent.name if config.get("init") else None
-    start = runs[parent].start + runs[parent].steps if parent in runs else 0
-    curve = RunCurve(folder.name, start, int(config["steps"]))
+    parent = runs.get(Path(config["init"]).parent.name) if config.get("init") else None
+    start = parent.start + parent.steps if parent else 0
+    cpu_start = parent.cpu_hours if parent else 0.0
+    curve = RunCurve(folder.name, start, 0, cpu_hours=cpu_start)
     with (folder / "log.csv").open() as stream:
         for row in csv.DictReader(stream):
+            curve.steps = max(curve.steps, int(row["step"]))
+            cpu = cpu_start + float(row["cpu_s"]) / 3600 if row.get("cpu_s") else None
+            curve.cpu_hours = max(curve.cpu_hours, cpu or 0.0)
             if row["set"] in SETS and row["val_epe"]:
-                cpu = float(row["cpu_s"]) / 3600 if row.get("cpu_s") else None
                 curve.points.setdefault(row["set"], []).append(
                     (start + int(row["step"]), float(row["val_epe"]), float(row["val_bad3"]), cpu))
+    curve.steps = curve.steps or int(config["steps"])
     return curve
 
 
@@ -77,7 +84,7 @@ def plot(curves: list[RunCurve], path: Path) -> None:
     with_cpu = any(p[3] is not None for curve in curves for points in curve.points.values() for p in points)
     axes_x = [(0, "training steps (cumulative over the fine-tuning chain)")]
     if with_cpu:
-        axes_x.append((3, "CPU-hours of the run (training process, all threads)"))
+        axes_x.append((3, "CPU-hours (training process, all threads; cumulative over the chain)"))
     rows = [(x, metric, label, xlabel) for x, xlabel in axes_x for metric, label in ((1, "EPE (px)"), (2, "bad-3 (%)"))]
     figure, axes = plt.subplots(len(rows), len(sets), figsize=(4.2 * len(sets), 3.3 * len(rows)), squeeze=False)
     for column, name in enumerate(sets):

@@ -2,14 +2,14 @@
 # Accuracy III, the fast design at 192 levels (models/README.md, "Session 21"): runs/fast-2d (128 levels)
 # lost 17-37 % EPE against cade-v11 through cade benchmark on the sets whose ranges its 128 levels run
 # at half size (Middlebury 2014, KITTI 2012, FlyingThings3D), at +17 % network time for 192 levels.
-# It starts from runs/fast-2d's last checkpoint (copied to runs/fast192-2d/init.pt; committed as
-# runs/fast-2d/last.pt at the switch) widened by net2d.with_more_levels (--init-partial): the old
+# It starts from runs/fast-2d's last checkpoint (runs/fast-2d/last.pt, step 12,500, where that run
+# stopped; commit d2c1536) widened by net2d.with_more_levels (--init-partial): the old
 # disparities keep their weights, the new ones start at the correlation prior. Then the campaign's
 # data and schedule: lr 1e-3 after a 500-step warm-up, cosine to 5 % at 60,000, seed 33, the ground.
 # Resume with the same command (it continues from runs/fast192-2d/last.pt). Beside the campaign on
 # this 2-core machine: OMP_NUM_THREADS=1 runs/fast192-2d/command.sh --threads 1.
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/fast192-2d --architecture cadenet2d \
-  --init runs/fast192-2d/init.pt --init-partial \
+  --init runs/fast-2d/last.pt --init-partial \
   --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \
   --textures ../shared/data/textures --data-dir ../shared/data \
   --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
