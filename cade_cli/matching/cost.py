@@ -42,8 +42,8 @@ def census_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     if window % 2 == 0 or not 3 <= window <= 7:
         raise ValueError(f"census window must be odd and in 3..7, got {window}")
     signature = np.zeros(image.shape, np.uint64)
-    for bit, darker in enumerate(_darker_neighbours(image, window)):
-        signature |= darker.astype(np.uint64) << np.uint64(bit)
+    for bit, neighbour in enumerate(_neighbours(image, window)):
+        signature |= (neighbour < image).astype(np.uint64) << np.uint64(bit)
     return signature
 
 
@@ -61,29 +61,25 @@ def rank_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     if window % 2 == 0 or window < 3:
         raise ValueError(f"rank window must be odd and at least 3, got {window}")
     image = image.astype(np.float32, copy=False)
-    radius, (height, width) = window // 2, image.shape
-    padded = cv2.copyMakeBorder(image, radius, radius, radius, radius, cv2.BORDER_REPLICATE)
     rank = np.zeros(image.shape, np.uint8)
-    for dy in range(window):
-        for dx in range(window):
-            if dy != radius or dx != radius:
-                # OpenCV's compare gives 255 where darker: subtracting it adds 1 modulo 256 (the
-                # same ranks as summing _darker_neighbours' planes, in 60 % of the time)
-                np.subtract(rank, cv2.compare(padded[dy:dy + height, dx:dx + width], image, cv2.CMP_LT), out=rank)
+    for neighbour in _neighbours(image, window):
+        # OpenCV's compare gives 255 where darker: subtracting it adds 1 modulo 256 (the same
+        # ranks as summing the bool planes ``neighbour < image``, in 60 % of the time)
+        np.subtract(rank, cv2.compare(neighbour, image, cv2.CMP_LT), out=rank)
     return rank
 
 
-def _darker_neighbours(image: np.ndarray, window: int) -> Iterator[np.ndarray]:
+def _neighbours(image: np.ndarray, window: int) -> Iterator[np.ndarray]:
     """For each neighbour in a ``window`` x ``window`` box (row by row, centre skipped),
-    the (H, W) bool plane ``neighbour < centre``; the float32 copy of ``image`` is padded
-    by replicating its borders."""
+    the (H, W) plane of that neighbour's values: views of the float32 copy of ``image``
+    padded by replicating its borders."""
     radius = window // 2
     height, width = image.shape
     padded = np.pad(image.astype(np.float32, copy=False), radius, mode="edge")
     for dy in range(window):
         for dx in range(window):
             if dy != radius or dx != radius:
-                yield padded[dy:dy + height, dx:dx + width] < image
+                yield padded[dy:dy + height, dx:dx + width]
 
 
 def census_cost(
