@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Accuracy III's shipping check of one trained checkpoint, end to end (models/README.md):
+#
+#   benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]
+#
+# 1. exports CHECKPOINT (a `fit` run's last.pt) as OUT_DIR/NAME.onnx + NAME.json, with the runtime's
+#    rank-SGBM refinement;
+# 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
+#    (32 hidden units, 4,000 steps, seed 0), and writes it into the card;
+# 3. runs `cade benchmark` on the five sets (Middlebury 2005 and 2014, FlyingThings3D, KITTI 2012 and
+#    2015; protocols cs and rgb) with the shipped model (SHIPPED, default cade-v11) and the candidate
+#    in the same run, one JSON file per set in OUT_DIR;
+# 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships.
+#
+# Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
+# card (default: this development VM). Threads: OMP_NUM_THREADS as set by the caller.
+set -euo pipefail
+if [ $# -lt 3 ]; then
+  echo "usage: benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]" >&2
+  exit 2
+fi
+checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v11}
+data=../shared/data
+hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
+mkdir -p "$out"
+.venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" --runtime-refinement rank-sgbm \
+  --hardware "$hardware"
+.venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
+  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card
+for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
+  .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
+    --protocol cs,rgb --json "$out/$dataset.json" > "$out/$dataset.md"
+done
+exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" \
+  "$out"/middlebury05.json "$out"/middlebury14.json "$out"/flyingthings3d.json "$out"/kitti2012.json \
+  "$out"/kitti2015.json
