@@ -27,10 +27,10 @@ mkdir -p "$out"
   --hardware "$hardware"
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
   --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card
+runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
     --protocol cs,rgb --json "$out/$dataset.json" > "$out/$dataset.md"
+  runs+=("$out/$dataset.json")
 done
-exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" \
-  "$out"/middlebury05.json "$out"/middlebury14.json "$out"/flyingthings3d.json "$out"/kitti2012.json \
-  "$out"/kitti2015.json
+exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" "${runs[@]}"
