@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Accuracy III shipping check, session 23 (models/README.md): an annealed copy of the campaign's
+# step-42,000 checkpoint (runs/campaign-2d/last.pt of this session's commit of that step, copied to
+# runs/anneal-42000/init.pt), by the anneal recipe (runs/anneal.sh), unchanged. Also the control of
+# runs/lever-shadows. Checked by:
+#   benchmarks/candidate_check.sh runs/anneal-42000/last.pt c42000 /tmp/c42000
+exec runs/anneal.sh runs/anneal-42000 --levels 192 --slice-channels 4 "$@"
