@@ -361,6 +361,37 @@ def test_a_ground_rises_from_its_horizon_to_the_bottom_and_its_views_agree(seed)
     assert np.median(error[checked]) < 0.01
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_a_cast_shadow_darkens_part_of_a_surface_and_leaves_the_rest_lit(seed):
+    from cade_cli.train.scenes import cast_shadow
+
+    texture = np.random.default_rng(100 + seed).uniform(0.4, 0.9, (120, 160, 3)).astype(np.float32)
+    shaded = cast_shadow(np.random.default_rng(seed), texture)
+    assert shaded.shape == texture.shape and shaded.dtype == np.float32
+    factors = shaded / texture
+    assert np.allclose(factors, factors[..., :1], atol=1e-5)  # one factor per pixel, for all channels
+    ratio = factors[..., 0]
+    assert (ratio <= 1 + 1e-5).all() and ratio.min() >= 0.03 - 1e-5
+    assert 0.1 < (ratio < 0.5).mean() < 0.8  # part of the surface in shade (20-70 %, less a soft edge)
+    assert (ratio > 0.9).mean() > 0.15  # and part of it in (nearly) full light
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_shadow_lies_on_the_surface_so_both_views_see_it_where_the_ground_truth_says(seed):
+    """With every surface shadowed the views still warp onto each other by the ground truth,
+    and there are dark patches to see: the shade is part of the texture, not of one view."""
+    scene = render_scene(np.random.default_rng(seed), 96, 160, limit=48, textures=TexturePool(),
+                         photometric=NO_PHOTOMETRIC, shadows=1.0, objects=(0, 2))
+    plain = render_scene(np.random.default_rng(seed), 96, 160, limit=48, textures=TexturePool(),
+                         photometric=NO_PHOTOMETRIC, objects=(0, 2))
+    assert scene.left.mean() < 0.9 * plain.left.mean()  # the shadowed scene is darker
+    warped = warp_right_to_left(scene.right, scene.disparity)
+    error = np.abs(warped - scene.left).max(axis=2)
+    checked = scene.nonoccluded & ~depth_edges(scene.disparity)
+    assert checked.mean() > 0.3
+    assert np.median(error[checked]) < 0.01 and (error[checked] < 0.05).mean() > 0.95
+
+
 def test_the_z_buffer_textures_each_layer_only_where_it_shows_with_the_values_of_a_whole_view():
     from cade_cli.train.scenes import Layer, _composite
 

@@ -85,6 +85,9 @@ def fit(
     ground: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered scenes with a ground under "
                                           "the objects (a road or floor from a horizon to near disparities at the "
                                           "bottom).")] = 0.0,
+    shadows: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered surfaces with shadows cast "
+                                           "on them (shade keeping 3-30 % of the light over 20-70 % of the "
+                                           "surface).")] = 0.0,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
@@ -129,7 +132,7 @@ def fit(
                          network_input=network_input, architecture=architecture, width2d=width2d, features2d=features2d,
                          half_channels=half_channels,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
-                         eraser=eraser, ground=ground, misaligned_offset=misaligned_offset,
+                         eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule)
     train(config, resume=resume)
 

@@ -79,24 +79,26 @@ def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes 
     return generated_pair(rng, pool, height, width, config.levels, misaligned=config.misaligned,
                           mode=config.training_mode, kind=config.network_input, scene_range=config.scene_range,
                           misaligned_offset=config.misaligned_offset, eraser=config.eraser, second_left=second_left,
-                          ground=config.ground)
+                          ground=config.ground, shadows=config.shadows)
 
 
 def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
                    misaligned: float = 0.0, mode: str = "cade", kind: str | None = None, scene_range: float = 1.0,
                    misaligned_offset: float = 1.0, eraser: float = 0.0, second_left: bool = False,
-                   ground: float = 0.0):
+                   ground: float = 0.0, shadows: float = 0.0):
     """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
     disparities below ``levels - 1`` px (times a per-scene share drawn from
     [``scene_range``, 1] when that is below 1); a share ``misaligned`` of the pairs has a
     vertically misaligned right view (by up to ``misaligned_offset`` px), a share
     ``eraser`` an erased patch (:func:`~cade_cli.train.scenes.erased`), a share ``ground`` a
-    ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`)."""
+    ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`), a share ``shadows`` of the
+    surfaces shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`)."""
     limit = levels - 1
     if scene_range < 1:  # no draw otherwise: earlier runs' scenes unchanged
         limit *= float(np.exp(rng.uniform(np.log(scene_range), 0.0)))
     scene = render_scene(rng, height, width, limit=limit, textures=pool,
-                         misalignment=Misalignment(share=misaligned, offset=misaligned_offset), ground=ground)
+                         misalignment=Misalignment(share=misaligned, offset=misaligned_offset), ground=ground,
+                         shadows=shadows)
     return mode_pair(erased(scene, rng, eraser), rng, mode, kind, second_left=second_left)
 
 

@@ -296,6 +296,7 @@ def render_scene(
     photometric: Photometric = Photometric(),
     misalignment: Misalignment = NO_MISALIGNMENT,
     ground: float = 0.0,
+    shadows: float = 0.0,
 ) -> StereoScene:
     """Render one stereo pair with disparity in [0, limit).
 
@@ -310,15 +311,19 @@ def render_scene(
             it may be off by the offset (about a pixel) along occlusion boundaries.
         ground: share of the scenes with a ground (:func:`ground_layer`) under the objects;
             no random draw when 0, so earlier runs' scenes are unchanged.
+        shadows: share of the surfaces (background, ground, objects) with shadows cast on
+            them (:func:`cast_shadow`); no random draw when 0, as for ``ground``.
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
     background_high = limit * (0.5 if rng.random() < 0.7 else 0.95)
-    layers = [Layer(_plane(rng, height, width, 0.0, background_high), None, *_textured(rng, textures, height, width))]
+    layers = [Layer(_plane(rng, height, width, 0.0, background_high), None,
+                    *_textured(rng, textures, height, width, shadows=shadows))]
     corners = layers[0].disparity(np.array([0.0, width, 0.0, width]), np.array([0.0, 0.0, height, height]))
     farthest_background = float(corners.min())
     if ground > 0 and rng.random() < ground:
-        layers.append(ground_layer(rng, height, width, near=farthest_background, limit=limit, textures=textures))
+        layers.append(ground_layer(rng, height, width, near=farthest_background, limit=limit, textures=textures,
+                                   shadows=shadows))
     for _ in range(rng.integers(*objects)):
         low = farthest_background if rng.random() < 0.8 else 0.0
         layers.append(Layer(_plane(rng, height, width, low, limit * 0.995),
@@ -342,7 +347,7 @@ def render_scene(
 
 
 def ground_layer(rng: np.random.Generator, height: int, width: int, *, near: float, limit: float,
-                 textures: TexturePool) -> Layer:
+                 textures: TexturePool, shadows: float = 0.0) -> Layer:
     """A ground seen from a camera above it (a road, a floor, a field): covering the view below a
     horizon row (anywhere from 10 % to 60 % down the view, tilted by up to 2 %), its disparity
     ``near`` px at the horizon and rising linearly to 40-99 % of ``limit`` at the nearest bottom
@@ -353,10 +358,12 @@ def ground_layer(rng: np.random.Generator, height: int, width: int, *, near: flo
     c = (bottom - near) / (height - horizon + abs(tilt) * width / 2)  # the nearest bottom corner reaches ``bottom``
     a, b = near - c * (horizon - tilt * width / 2), -c * tilt
     return Layer((float(a), float(b), float(c)),
-                 lambda x, y: y >= horizon + tilt * (x - width / 2), *_textured(rng, textures, height, width))
+                 lambda x, y: y >= horizon + tilt * (x - width / 2),
+                 *_textured(rng, textures, height, width, shadows=shadows))
 
 
-def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int, *,
+              shadows: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     texture = textures.draw(rng)
     kind = rng.random()
     if kind < 0.1:  # nearly textureless surfaces exist too
@@ -364,7 +371,31 @@ def _textured(rng: np.random.Generator, textures: TexturePool, height: int, widt
         texture = (mean + rng.uniform(0.02, 0.15) * (texture - mean)).astype(np.float32)
     elif kind < 0.2:  # and dark ones (black cloth, shadows): after noise and 8 bits, little signal is left
         texture = (rng.uniform(0.01, 0.1) * texture).astype(np.float32)
+    if shadows > 0 and rng.random() < shadows:  # no draw when off: earlier runs' scenes unchanged
+        texture = cast_shadow(rng, texture)
     return texture, _mapping(rng, texture, height, width)
+
+
+def cast_shadow(rng: np.random.Generator, texture: np.ndarray) -> np.ndarray:
+    """``texture`` with shadows cast on it: trees' or buildings' shade on a sunlit road or wall.
+
+    Part of the surface (20-70 %, in blobs drawn from smooth noise of 3-24 cells across, so from
+    a few large shadows to dappled foliage shade) keeps 3-30 % of its light; the edge is sharp
+    or soft (a blur of up to 15 % of a cell). The shade lies on the texture, so both views
+    see it on the same surface points, as with a real cast shadow: inside it the texture's
+    contrast drops with its light, and after noise and 8 bits little is left to match, while the
+    shadow's edge is a strong feature both views share.
+    """
+    height, width = texture.shape[:2]
+    cells = int(rng.integers(3, 25))
+    field = cv2.resize(rng.standard_normal((cells, cells)).astype(np.float32), (width, height),
+                       interpolation=cv2.INTER_CUBIC)
+    shaded = (field < np.quantile(field, rng.uniform(0.2, 0.7))).astype(np.float32)
+    softness = rng.uniform(0.0, 0.15) * max(height, width) / cells  # a penumbra narrower than a blob
+    if softness > 0.5:
+        shaded = cv2.GaussianBlur(shaded, (0, 0), softness)
+    light = np.float32(rng.uniform(0.03, 0.3))
+    return (texture * (1 - (1 - light) * shaded)[..., None]).astype(np.float32)
 
 
 def camera(rng: np.random.Generator, image: np.ndarray, photometric: Photometric) -> np.ndarray:

@@ -8,10 +8,12 @@
 # data and schedule: lr 1e-3 after a 500-step warm-up, cosine to 5 % at 60,000, seed 33, the ground.
 # Resume with the same command (it continues from runs/fast192-2d/last.pt). Beside the campaign on
 # this 2-core machine: OMP_NUM_THREADS=1 runs/fast192-2d/command.sh --threads 1.
+# --shadows 0.3 from the checkpoint of step 23,500 on (session 23: its ablation, runs/lever-shadows against
+# runs/anneal-42000, models/README.md); the steps before it ran without (this file's earlier versions in git).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/fast192-2d --architecture cadenet2d \
   --init runs/fast-2d/last.pt --init-partial \
   --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \
   --textures ../shared/data/textures --data-dir ../shared/data \
   --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
-  --ground 0.3 --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 33 \
+  --ground 0.3 --shadows 0.3 --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 33 \
   --device cpu --threads 2 --workers 0 --validate-every 1000 --validate-rgb "$@"
