@@ -85,8 +85,8 @@ def fit(
     ground: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered scenes with a ground under "
                                           "the objects (a road or floor from a horizon to near disparities at the "
                                           "bottom).")] = 0.0,
-    shadows: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered surfaces with shadows cast "
-                                           "on them (shade keeping 3-30 % of the light over 20-70 % of the "
+    shadows: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered backgrounds and grounds "
+                                           "with shadows cast on them (shade keeping 3-30 % of the light over 20-70 % of the "
                                            "surface).")] = 0.0,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,

@@ -92,7 +92,7 @@ def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, wid
     vertically misaligned right view (by up to ``misaligned_offset`` px), a share
     ``eraser`` an erased patch (:func:`~cade_cli.train.scenes.erased`), a share ``ground`` a
     ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`), a share ``shadows`` of the
-    surfaces shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`)."""
+    backgrounds and grounds shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`)."""
     limit = levels - 1
     if scene_range < 1:  # no draw otherwise: earlier runs' scenes unchanged
         limit *= float(np.exp(rng.uniform(np.log(scene_range), 0.0)))

@@ -91,8 +91,8 @@ class TrainConfig:
     """Share of rendered scenes with a ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`:
     a road or floor rising from a horizon to near disparities at the bottom); 0: none, no draw."""
     shadows: float = 0.0
-    """Share of rendered surfaces with shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`);
-    0: none, no draw."""
+    """Share of rendered backgrounds and grounds with shadows cast on them
+    (:func:`~cade_cli.train.scenes.cast_shadow`; objects keep their textures); 0: none, no draw."""
     misaligned_offset: float = 1.0
     """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
     feature_consistency: float = 0.0

@@ -311,8 +311,9 @@ def render_scene(
             it may be off by the offset (about a pixel) along occlusion boundaries.
         ground: share of the scenes with a ground (:func:`ground_layer`) under the objects;
             no random draw when 0, so earlier runs' scenes are unchanged.
-        shadows: share of the surfaces (background, ground, objects) with shadows cast on
-            them (:func:`cast_shadow`); no random draw when 0, as for ``ground``.
+        shadows: share of the background and ground surfaces (the wide ones a shade falls
+            across; objects keep their textures) with shadows cast on them
+            (:func:`cast_shadow`); no random draw when 0, as for ``ground``.
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
