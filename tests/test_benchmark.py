@@ -359,3 +359,40 @@ def test_progress_counts_every_matcher_run(folder_dataset, oracle):
                       preprocess=["none", "cade"], jobs=jobs, on_start=started.append, on_run=runs.append)
         assert started == [2 * (6 + 3) * 2] and len(runs) == started[0]  # scenes x tasks x preprocessing
         assert runs[0] == ("first R>G: sgbm + none" if jobs == 1 else "first done")
+
+
+def test_brightness_classes_put_each_gross_error_where_the_light_is():
+    """A texture shifted 8 px, its left half darkened to 5 %: the dark class holds the left half's
+    pixels, the bright one the right half's; the cade matcher recovers the bright half, and GT off
+    by 10 px makes every scored pixel a gross error in every class."""
+    import importlib.util
+
+    from cade_cli.data import Scene
+    from cade_cli.evaluation.protocols import get_protocol
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "brightness.py"
+    spec = importlib.util.spec_from_file_location("brightness", script)
+    brightness = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(brightness)
+    rng = np.random.default_rng(7)
+    height, width, shift = 96, 160, 8
+    grey = rng.random((height // 4, (width + shift) // 4, 1), dtype=np.float32)  # the same in every band
+    texture = np.repeat(np.repeat(grey, 4, axis=0), 4, axis=1) * np.array([0.9, 1.0, 0.7], np.float32)
+    light = np.where(np.arange(width + shift) < (width + shift) // 2, 0.05, 1.0).astype(np.float32)[None, :, None]
+    texture = texture * light
+    left, right = texture[:, :width], texture[:, shift:shift + width]
+    gt = np.full((height, width), float(shift), np.float32)
+    gt[:, :shift] = np.nan
+    scene = Scene("shifted", np.ascontiguousarray(left), np.ascontiguousarray(right), gt, None, 32, "test")
+    protocol = get_protocol("cs").select(["R>B"])
+    edges = (0.0, 0.1, 0.4)
+    counts = brightness.count_scene(scene, models=("cade-v11",), protocol=protocol, edges=edges)[0]
+    scored = counts[:, 1]
+    assert scored.sum() == np.isfinite(gt).sum()
+    half = height * (width // 2)
+    assert abs(scored[0] - (half - height * shift)) < height * 12  # the dark half, less its unknown columns
+    assert abs(scored[2] - half) < height * 12  # the bright half
+    assert counts[2, 0] < 0.05 * scored[2]
+    wrong = dataclasses.replace(scene, disparity=gt + 10)
+    off = brightness.count_scene(wrong, models=("cade-v11",), protocol=protocol, edges=edges)[0]
+    assert np.all(off[:, 0] >= 0.9 * off[:, 1])
