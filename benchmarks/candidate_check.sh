@@ -13,7 +13,9 @@
 # 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships.
 #
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
-# card (default: this development VM). Threads: OMP_NUM_THREADS as set by the caller.
+# card (default: this development VM). CHOOSER_SCENES (comma-separated) fits the chooser on those
+# train-real scenes only: the ones the checkpoint's run held out (fit --real-hold-out). Threads:
+# OMP_NUM_THREADS as set by the caller.
 set -euo pipefail
 if [ $# -lt 3 ]; then
   echo "usage: benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]" >&2
@@ -25,8 +27,10 @@ hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU
 mkdir -p "$out"
 .venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" --runtime-refinement rank-sgbm \
   --hardware "$hardware"
+scenes=()
+[ -n "${CHOOSER_SCENES:-}" ] && scenes=(--scenes "$CHOOSER_SCENES")
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
-  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card
+  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${scenes[@]}"
 runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \

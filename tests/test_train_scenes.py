@@ -230,25 +230,32 @@ def test_an_outline_evaluated_in_its_box_is_the_outline_evaluated_everywhere():
     assert covered > 300  # most outlines show, and none covers everything
 
 
+def write_real_scene(folder, rng: np.random.Generator, *, shift: int) -> None:
+    """A scene in the MiddEval3 layout: a blurred random texture, im1(x - shift) = im0(x)."""
+    import cv2
+
+    from cade_cli.io.disparity import write_disparity
+
+    folder.mkdir()
+    texture = cv2.GaussianBlur(rng.random((120, 220, 3)).astype(np.float32), (0, 0), 2.0)
+    texture = np.rint(255 * (texture - texture.min()) / (texture.max() - texture.min())).astype(np.uint8)
+    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:205])
+    cv2.imwrite(str(folder / "im1.png"), texture[:, 5 + shift:205 + shift])
+    write_disparity(folder / "disp0GT.pfm", np.full((120, 200), float(shift), np.float32))
+    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((120, 200), 255, np.uint8))
+    (folder / "calib.txt").write_text("width=200\nheight=120\nndisp=16\n")
+
+
 def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_path):
     """A real scene in the MiddEval3 layout (a texture shifted by 5 px) comes out at the
     training size with its disparity scaled by the zoom, and the right view warped by it
     reproduces the left view (rows flipped or not)."""
     import cv2
 
-    from cade_cli.io.disparity import write_disparity
     from cade_cli.train.real import RealScenes
 
     rng = np.random.default_rng(0)
-    folder = tmp_path / "scene"
-    folder.mkdir()
-    texture = cv2.GaussianBlur(rng.random((120, 220, 3)).astype(np.float32), (0, 0), 2.0)
-    texture = np.rint(255 * (texture - texture.min()) / (texture.max() - texture.min())).astype(np.uint8)
-    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:205])
-    cv2.imwrite(str(folder / "im1.png"), texture[:, 10:210])  # im1(x - 5) = im0(x)
-    write_disparity(folder / "disp0GT.pfm", np.full((120, 200), 5.0, np.float32))
-    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((120, 200), 255, np.uint8))
-    (folder / "calib.txt").write_text("width=200\nheight=120\nndisp=16\n")
+    write_real_scene(tmp_path / "scene", rng, shift=5)
     pool = RealScenes(tmp_path, zoom=(0.8, 1.6))
     zooms = set()
     for _ in range(6):
@@ -265,6 +272,29 @@ def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_
     assert len(zooms) > 1
     with pytest.raises(Exception, match="no real training scenes|no middeval3 scenes"):
         RealScenes(tmp_path / "scene")
+
+
+def test_held_out_real_scenes_are_never_drawn(tmp_path):
+    """Two real scenes (disparity 3 and 7 px at zoom 1): with the 7 px one held out every draw
+    comes from the other; a name the folder lacks, or holding out every scene, is an error."""
+    from cade_cli.errors import CadeError
+    from cade_cli.train.real import RealScenes
+
+    rng = np.random.default_rng(1)
+    write_real_scene(tmp_path / "near", rng, shift=3)
+    write_real_scene(tmp_path / "far", rng, shift=7)
+    both, kept = RealScenes(tmp_path, zoom=(1.0, 1.0)), RealScenes(tmp_path, zoom=(1.0, 1.0), hold_out=["far"])
+    assert [scene.name for scene in kept.scenes] == ["near"] and len(both.scenes) == 2
+
+    def drawn(pool: RealScenes) -> set[int]:
+        draws = (pool.draw(rng, 64, 128, limit=40, photometric=NO_PHOTOMETRIC) for _ in range(12))
+        return {round(float(np.nanmedian(scene.disparity))) for scene in draws}
+
+    assert drawn(both) == {3, 7} and drawn(kept) == {3}
+    with pytest.raises(CadeError, match="not in .*: nowhere"):
+        RealScenes(tmp_path, hold_out=["near", "nowhere"])
+    with pytest.raises(CadeError, match="all held out"):
+        RealScenes(tmp_path, hold_out=["near", "far"])
 
 
 def test_learning_curves_chain_runs_by_their_init_and_draw_one_picture(tmp_path):

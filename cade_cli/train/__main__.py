@@ -48,6 +48,8 @@ def fit(
                                                   "(../shared/data/train-real); never a reporting set.")] = None,
     real_share: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs cut from a real "
                                               "scene instead of rendered (needs --real-dir).")] = 0.0,
+    real_hold_out: Annotated[str | None, typer.Option(help="Scenes of --real-dir never trained on, comma-separated: "
+                                                      "fit the chooser on them (chooser --scenes).")] = None,
     channels3d: Annotated[int, typer.Option(min=1, help="Channels of the 3D aggregation (8: cade-v4/v6).")] = 8,
     census: Annotated[bool, typer.Option(help="A census cost volume of the input bands beside the learned "
                                          "correlation, into the 3D aggregation.")] = False,
@@ -103,6 +105,8 @@ def fit(
     """Train (or resume) a run."""
     if real_share > 0 and real_dir is None:
         raise typer.BadParameter("--real-share needs --real-dir", param_hint="--real-share")
+    if real_hold_out and real_dir is None:
+        raise typer.BadParameter("--real-hold-out needs --real-dir", param_hint="--real-hold-out")
     from cade_cli.train.config import TrainConfig
     from cade_cli.train.fit import train
     from cade_cli.train.pairs import TRAINING_MODES
@@ -127,6 +131,7 @@ def fit(
                          init=str(init) if init else None, warmup=warmup, padding=padding,
                          entry_kernel=entry_kernel, misaligned=misaligned,
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
+                         real_hold_out=real_hold_out.split(",") if real_hold_out else [],
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
                          network_input=network_input, architecture=architecture, width2d=width2d, features2d=features2d,
@@ -232,6 +237,8 @@ def chooser(
                                            "(../shared/data/train-real, MiddEval3 layout): the chooser is fitted "
                                            "on these only.")],
     cache: Annotated[Path, typer.Option(help="Folder for the candidate caches (one npz per scene; reused).")],
+    scenes: Annotated[str | None, typer.Option(help="Fit on these scenes of --real-dir only, comma-separated (those "
+                                               "the network's run held out: fit --real-hold-out); default all.")] = None,
     model: Annotated[str, typer.Option(help="The network whose candidates are chosen between (card name or path).")]
     = "cade-v4",
     data_dir: Annotated[Path | None, typer.Option(help="Folder of the reporting sets, to score the chooser "
@@ -252,7 +259,8 @@ def chooser(
     from cade_cli.model_card import card_path
     from cade_cli.train.chooser import SAME_BAND_TASKS, cache_candidates, fit, report, score
 
-    train = cache_candidates("middeval3", real_dir, cache / "train-real", model=model)
+    names = scenes.split(",") if scenes else None
+    train = cache_candidates("middeval3", real_dir, cache / "train-real", model=model, scenes=names)
     chosen = fit(train, hidden=hidden, steps=steps, seed=seed)
     print(f"train-real CS: {report(score(train, chosen))}")
     if data_dir is not None:
@@ -264,9 +272,11 @@ def chooser(
     if write_card:
         path = card_path(model)
         card = json.loads(path.read_text())
-        card["chooser"] = {**chosen.to_dict(), "fitted_on": "train-real (18 scenes x 6 CS tasks)",
+        fitted_on = f"train-real ({len(train)} scenes x 6 CS tasks" + (f": {scenes})" if scenes else ")")
+        card["chooser"] = {**chosen.to_dict(), "fitted_on": fitted_on,
                            "command": f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
-                                      f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"}
+                                      + (f"--scenes {scenes} " if scenes else "")
+                                      + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"}
         path.write_text(json.dumps(card, indent=2) + "\n")
         print(f"wrote the chooser into {path}")
 

@@ -30,7 +30,8 @@ class GeneratedBatches(torch.utils.data.Dataset):
         config = self.config
         if self.pool is None:
             self.pool = TexturePool([Path(folder) for folder in config.textures])
-            self.real = RealScenes(Path(config.real_dir)) if config.real_share > 0 else None
+            self.real = (RealScenes(Path(config.real_dir), hold_out=config.real_hold_out)
+                         if config.real_share > 0 else None)
         rng = np.random.default_rng([config.seed, step])
         height, width = crop_at(config, step)
         return collate([training_pair(rng, self.pool, self.real, config, height, width) for _ in range(config.batch)])

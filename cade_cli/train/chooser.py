@@ -15,6 +15,7 @@ into the model's card, where the runtime finds it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -41,14 +42,15 @@ CS_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("cs").tasks
 SAME_BAND_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("rgb").tasks)
 
 
-def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str) -> list[Path]:
-    """One npz per scene of ``dataset`` in ``out`` (kept when it exists), the candidates of
-    ``model``'s network and the rank-SGBM refinement for every task of :data:`PROTOCOLS`;
-    returns the files."""
+def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
+                     scenes: Sequence[str] | None = None) -> list[Path]:
+    """One npz per scene of ``dataset`` (all, or those named in ``scenes``) in ``out`` (kept
+    when it exists), the candidates of ``model``'s network and the rank-SGBM refinement for
+    every task of :data:`PROTOCOLS`; returns the files."""
     out.mkdir(parents=True, exist_ok=True)
     network, refinement = NetworkStage(model=model), RankSgbmRefinement()
     files = []
-    for scene in get_dataset(dataset)(data_dir):
+    for scene in get_dataset(dataset)(data_dir, scenes=scenes):
         target = out / f"{scene.name.replace('/', '-')}.npz"
         files.append(target)
         if target.exists():

@@ -3,7 +3,7 @@ takes them and every checkpoint records them."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass
@@ -58,6 +58,9 @@ class TrainConfig:
     real_share: float = 0.0
     """Share of training pairs cut from a real scene instead of rendered (needs ``real_dir``);
     cade-v1 … v4: 0."""
+    real_hold_out: list[str] = field(default_factory=list)
+    """Scenes of ``real_dir`` never trained on, for fitting the learned chooser on scenes the
+    network has not memorised (every run before session 24: none held out)."""
     amp: bool = False
     """Mixed precision: the forward pass and the loss under bf16 autocast (the GPU recipe,
     docs/gpu-recipe.md); weights, gradients and the optimizer stay float32."""

@@ -15,6 +15,7 @@ these scenes do not all carry, so it is not done.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import cv2
@@ -32,16 +33,26 @@ class RealScenes:
             ``im1.png``, ``disp0GT.pfm``, ``mask0nocc.png``, ``calib.txt``).
         zoom: the range the scale factor is drawn from (log-uniformly); the crop must
             fit, so the lower end is raised where a scene is too small for it.
+        hold_out: names of scenes in ``folder`` never drawn: kept out of training so that
+            the learned chooser can be fitted on scenes the network has not memorised
+            (``python -m cade_cli.train chooser --scenes``).
     """
 
-    def __init__(self, folder: Path, *, zoom: tuple[float, float] = (0.8, 1.8)):
+    def __init__(self, folder: Path, *, zoom: tuple[float, float] = (0.8, 1.8), hold_out: Sequence[str] = ()):
         from cade_cli.data import get_dataset
 
         self.folder = Path(folder)
         self.zoom = zoom
-        self.scenes = list(get_dataset("middeval3")(self.folder))
+        reader = get_dataset("middeval3")
+        names = reader.scene_names(self.folder)
+        unknown = sorted(set(hold_out) - set(names))
+        if unknown:
+            raise CadeError(f"scenes to hold out are not in {folder}: {', '.join(unknown)}")
+        kept = [name for name in names if name not in set(hold_out)]
+        self.scenes = list(reader(self.folder, scenes=kept)) if kept else []
         if not self.scenes:
-            raise CadeError(f"no real training scenes in {folder}; expected <scene>/im0.png, im1.png, disp0GT.pfm")
+            raise CadeError(f"no real training scenes in {folder}; expected <scene>/im0.png, im1.png, disp0GT.pfm"
+                            + (" (all held out)" if hold_out else ""))
 
     def draw(self, rng: np.random.Generator, height: int, width: int, *, limit: float,
              photometric: Photometric = Photometric()) -> StereoScene:
