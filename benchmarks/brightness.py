@@ -44,12 +44,13 @@ def count_scene(scene: Scene, *, models: tuple[str, ...], protocol: Protocol, ed
     counts = np.zeros((len(models), len(edges), 2), np.int64)
     known = np.isfinite(scene.disparity)
     bounds = (*edges, np.inf)
+    matchers = [get_matcher("cade", model=model) for model in models]
     for task in protocol.tasks:
         left, right = task.bands(scene.left, scene.right)
-        classes = [known & (lo <= level) & (level < hi)
-                   for level in [brightness(left)] for lo, hi in zip(bounds, bounds[1:])]
-        for m, model in enumerate(models):
-            result = get_matcher("cade", model=model)(left, right, max_disp=scene.max_disp, min_disp=0)
+        level = brightness(left)
+        classes = [known & (lo <= level) & (level < hi) for lo, hi in zip(bounds, bounds[1:])]
+        for m, matcher in enumerate(matchers):
+            result = matcher(left, right, max_disp=scene.max_disp, min_disp=0)
             bad = np.abs(densify(result.disparity, result.valid) - scene.disparity) > BAD
             for k, pixels in enumerate(classes):
                 counts[m, k] = (np.count_nonzero(bad & pixels), np.count_nonzero(pixels))

@@ -95,3 +95,18 @@ def render_pair(
     reliable = ~edges & (columns >= float(np.ceil(disparity.max())) + margin) & (columns < width - margin)
     reliable &= (rows >= margin) & (rows < height - margin)
     return SyntheticPair(left.astype(np.float32), right.astype(np.float32), disparity, reliable, occluded)
+
+
+def write_real_scene(folder, rng: np.random.Generator, *, shift: int = 5) -> None:
+    """A real training scene in the MiddEval3 layout (``RealScenes``, ``--real-dir``): a blurred
+    random texture of 120 x 200 px, im1(x - shift) = im0(x), ground truth ``shift`` everywhere."""
+    from cade_cli.io.disparity import write_disparity
+
+    folder.mkdir(parents=True)
+    texture = cv2.GaussianBlur(rng.random((120, 220, 3)).astype(np.float32), (0, 0), 2.0)
+    texture = np.rint(255 * (texture - texture.min()) / (texture.max() - texture.min())).astype(np.uint8)
+    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:205])
+    cv2.imwrite(str(folder / "im1.png"), texture[:, 5 + shift:205 + shift])
+    write_disparity(folder / "disp0GT.pfm", np.full((120, 200), float(shift), np.float32))
+    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((120, 200), 255, np.uint8))
+    (folder / "calib.txt").write_text("width=200\nheight=120\nndisp=16\n")

@@ -24,6 +24,7 @@ from cade_cli.train.model import (  # noqa: E402
     groupwise_correlation,
     parameter_count,
 )
+from synthetic import write_real_scene  # noqa: E402
 
 
 def test_groupwise_correlation_matches_a_loop_reference():
@@ -276,7 +277,7 @@ def test_the_gpu_recipe_runs_its_cpu_path_in_budgeted_resumable_calls(tmp_path: 
     last one stopped and end at the schedule's last step."""
     real = tmp_path / "real"
     for index, name in enumerate(("a", "b")):
-        make_real_scene(real / name, np.random.default_rng(index))
+        write_real_scene(real / name, np.random.default_rng(index))
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=2, height=32, width=64, levels=16,
                          workers=1, validate_every=100, checkpoint_every=100, amp=True, time_budget_s=1e-3,
                          real_dir=str(real), real_share=0.5)
@@ -287,21 +288,6 @@ def test_the_gpu_recipe_runs_its_cpu_path_in_budgeted_resumable_calls(tmp_path: 
     assert steps[:4] == [1, 2, 3, 4] and steps[-1] == 4  # one step per call, then nothing left to do
     rows = list(csv.DictReader((tmp_path / "run" / "log.csv").open()))
     assert [row["step"] for row in rows if row["set"] == "synthetic"] == ["4"]
-
-
-def make_real_scene(folder: Path, rng: np.random.Generator) -> None:
-    """A scene in the MiddEval3 layout: a random texture shifted by 5 px, ground truth 5."""
-    import cv2
-
-    from cade_cli.io.disparity import write_disparity
-
-    folder.mkdir(parents=True)
-    texture = (rng.random((48, 100, 3)) * 255).astype(np.uint8)
-    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:85])
-    cv2.imwrite(str(folder / "im1.png"), texture[:, 10:90])  # im1(x - 5) = im0(x)
-    write_disparity(folder / "disp0GT.pfm", np.full((48, 80), 5.0, np.float32))
-    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((48, 80), 255, np.uint8))
-    (folder / "calib.txt").write_text("width=80\nheight=48\nndisp=16\n")
 
 
 def test_a_wider_3d_part_starts_from_a_narrower_checkpoints_2d_weights(tmp_path: Path):

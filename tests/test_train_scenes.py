@@ -16,6 +16,7 @@ from cade_cli.train.scenes import (
     NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, TexturePool, _textured, procedural_texture, render_scene,
 )
 from cade_cli.train.shapes import random_shape
+from synthetic import write_real_scene
 
 
 def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
@@ -230,22 +231,6 @@ def test_an_outline_evaluated_in_its_box_is_the_outline_evaluated_everywhere():
     assert covered > 300  # most outlines show, and none covers everything
 
 
-def write_real_scene(folder, rng: np.random.Generator, *, shift: int) -> None:
-    """A scene in the MiddEval3 layout: a blurred random texture, im1(x - shift) = im0(x)."""
-    import cv2
-
-    from cade_cli.io.disparity import write_disparity
-
-    folder.mkdir()
-    texture = cv2.GaussianBlur(rng.random((120, 220, 3)).astype(np.float32), (0, 0), 2.0)
-    texture = np.rint(255 * (texture - texture.min()) / (texture.max() - texture.min())).astype(np.uint8)
-    cv2.imwrite(str(folder / "im0.png"), texture[:, 5:205])
-    cv2.imwrite(str(folder / "im1.png"), texture[:, 5 + shift:205 + shift])
-    write_disparity(folder / "disp0GT.pfm", np.full((120, 200), float(shift), np.float32))
-    cv2.imwrite(str(folder / "mask0nocc.png"), np.full((120, 200), 255, np.uint8))
-    (folder / "calib.txt").write_text("width=200\nheight=120\nndisp=16\n")
-
-
 def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_path):
     """A real scene in the MiddEval3 layout (a texture shifted by 5 px) comes out at the
     training size with its disparity scaled by the zoom, and the right view warped by it
@@ -277,7 +262,6 @@ def test_real_scenes_are_cropped_zoomed_and_flipped_with_their_ground_truth(tmp_
 def test_held_out_real_scenes_are_never_drawn(tmp_path):
     """Two real scenes (disparity 3 and 7 px at zoom 1): with the 7 px one held out every draw
     comes from the other; a name the folder lacks, or holding out every scene, is an error."""
-    from cade_cli.errors import CadeError
     from cade_cli.train.real import RealScenes
 
     rng = np.random.default_rng(1)

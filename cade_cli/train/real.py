@@ -44,11 +44,11 @@ class RealScenes:
         self.folder = Path(folder)
         self.zoom = zoom
         reader = get_dataset("middeval3")
-        names = reader.scene_names(self.folder)
-        unknown = sorted(set(hold_out) - set(names))
+        names, held = reader.scene_names(self.folder), set(hold_out)
+        unknown = sorted(held - set(names))
         if unknown:
             raise CadeError(f"scenes to hold out are not in {folder}: {', '.join(unknown)}")
-        kept = [name for name in names if name not in set(hold_out)]
+        kept = [name for name in names if name not in held]
         self.scenes = list(reader(self.folder, scenes=kept)) if kept else []
         if not self.scenes:
             raise CadeError(f"no real training scenes in {folder}; expected <scene>/im0.png, im1.png, disp0GT.pfm"
