@@ -242,6 +242,7 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
         return _Worker(process, mine)
 
     waiting = collections.deque(enumerate(pairs))
+    interrupted: list[Pair] = []
     attempts: collections.Counter[int] = collections.Counter()
     workers = [start() for _ in range(min(jobs, len(waiting)))]
     try:
@@ -281,6 +282,7 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
                 elif (failed := _retry_or_fail(index, pair, error, attempts, waiting)) is not None:
                     yield failed
     except BaseException:
+        interrupted = [worker.running[1] for worker in workers if worker.running is not None]
         for worker in workers:  # interrupt the pairs in hand; their temporaries are discarded
             if worker.process.is_alive():
                 os.kill(worker.process.pid, signal.SIGINT)
@@ -297,6 +299,9 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
                 worker.process.terminate()
                 worker.process.join()
             worker.connection.close()
+        # a signal that lands while a worker discards its temporary (or before it is tracked) leaves
+        # it behind; every worker has ended, so no one else writes these pairs: as for a dead worker
+        remove_stale_temporaries(interrupted)
 
 
 def _retry_or_fail(index: int, pair: Pair, error: str, attempts: collections.Counter,
