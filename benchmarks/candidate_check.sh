@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III's shipping check of one trained checkpoint, end to end (models/README.md):
+# The shipping check of one trained checkpoint, end to end (models/README.md; Accuracy IV's rule):
 #
 #   benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]
 #
@@ -8,8 +8,9 @@
 # 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
 #    (32 hidden units, 4,000 steps, seed 0), and writes it into the card;
 # 3. runs `cade benchmark` on the five sets (Middlebury 2005 and 2014, FlyingThings3D, KITTI 2012 and
-#    2015; protocols cs and rgb) with the shipped model (SHIPPED, default cade-v11) and the candidate
-#    in the same run, one JSON file per set in OUT_DIR;
+#    2015; protocols cs and rgb) and on the real cross-spectral check (msir-outdoor: VIS/NIR pairs of a
+#    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v11)
+#    and the candidate in the same run, one JSON file per set in OUT_DIR;
 # 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships.
 #
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
@@ -37,4 +38,7 @@ for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
     --protocol cs,rgb --json "$out/$dataset.json" > "$out/$dataset.md"
   runs+=("$out/$dataset.json")
 done
+.venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
+  --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
+runs+=("$out/msir-outdoor.json")
 exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" "${runs[@]}"
