@@ -5,6 +5,8 @@ framing of a pair (turn, sign, shift) on the real data, its wiring into ``cade b
 from __future__ import annotations
 
 import json
+import math
+import os
 
 import cv2
 import numpy as np
@@ -17,7 +19,7 @@ from cade_cli.evaluation.loop import run_benchmark
 from cade_cli.matching import MATCHERS
 from cade_cli.rigs.array_pseudo_gt import agreeing_estimates, pseudo_ground_truth, rereferenced
 from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
-from cli_runner import run_cade
+from cli_runner import run_cade, write_png16
 from synthetic import smooth_texture
 
 SHAPE = (96, 128)
@@ -129,6 +131,92 @@ def test_rereferenced_composes_the_plane_mappings():
     point = np.array([12.0, 34.0, 1.0])  # c2's pixel -> c0's -> c1's must be the composed map
     via = np.linalg.solve(np.vstack([a, [0, 0, 1]]), np.vstack([b, [0, 0, 1]]) @ point)
     np.testing.assert_allclose(turned.camera("c2").to_reference.homography @ point, via, atol=1e-9)
+
+
+# --- msir-outdoor on a rendered miniature of its folder ----------------------------------
+
+
+@pytest.fixture
+def mini_msir(tmp_path, monkeypatch):
+    """A folder in the msir-outdoor layout, 9 cameras rendered at the MSIR positions (40 mm =
+    one unit baseline), every camera already on the façade plane (the same 8 corners in each),
+    cameras 0-2 with another spectral response; the cache in ``tmp_path/cache``."""
+    folder = tmp_path / "data" / "msir-outdoor"
+    (folder / "scene").mkdir(parents=True)
+    (folder / "calibration").mkdir()
+    rng = np.random.default_rng(11)
+    textures = [smooth_texture(rng, (SHAPE[0] + 40, SHAPE[1] + 40), sigma=1.2) for _ in range(2)]
+    layout = {}
+    for index in range(9):
+        x_mm, y_mm = 40 - 40 * (index % 3), 40 - 40 * (index // 3)  # Cam-0 at X = Y = +40 (image right, top)
+        band = _render(textures, (x_mm / 40, -y_mm / 40))
+        write_png16(folder / "scene" / f"Cam-{index}.png", band**2 if index < 3 else band)  # census: monotone
+        layout[f"Camera {index}"] = {"X": x_mm, "Y": y_mm, "image_width": SHAPE[1], "image_height": SHAPE[0]}
+    (folder / "camera_array.json").write_text(json.dumps(layout))
+    corners = np.array([[10, 10], [110, 12], [60, 50], [15, 85], [100, 80], [40, 30], [80, 60], [30, 70]], float)
+    np.save(folder / "calibration" / "corners.npy", np.repeat(corners[None], 9, axis=0))
+    monkeypatch.setenv(msir.CACHE_ENV, str(tmp_path / "cache"))
+    return folder
+
+
+def test_mini_msir_tasks_have_the_rendered_disparity_and_sign(mini_msir):
+    """Each task's pseudo ground truth holds the rendered background and box disparities, times
+    the baseline, plus the shift; a classical matcher on the task's own VIS/NIR pair (census:
+    the NIR response differs) finds them, so the turn and the sign are the project's."""
+    scenes = {scene.name: scene for scene in DATASETS["msir-outdoor"](mini_msir.parent)}
+    assert list(scenes) == ["cam3-cam0", "cam4-cam1", "cam5-cam2", "cam6-cam0", "cam7-cam1", "cam8-cam2"]
+    for name, ratio in (("cam4-cam1", 1), ("cam7-cam1", 2)):
+        scene = scenes[name]
+        shift = scene.metadata["shift"]
+        assert scene.metadata["baseline_mm"] == 40 * ratio
+        lowest = 1 - BACKGROUND * ratio  # the shift brings the background to 1 px, or a bit more (noise)
+        assert math.ceil(lowest) <= shift <= math.ceil(lowest) + 1 and np.nanmin(scene.disparity) >= 1
+        assert scene.left.shape == (SHAPE[1], SHAPE[0] - shift, 3)  # turned: the baseline is vertical
+        kept = scene.disparity[np.isfinite(scene.disparity)]
+        background, box = shift + BACKGROUND * ratio, shift + BOX * ratio
+        near_background, near_box = np.abs(kept - background) < 0.3 * ratio, np.abs(kept - box) < 0.3 * ratio
+        assert np.mean(near_background | near_box) > 0.97 and near_box.mean() > 0.05 and near_background.mean() > 0.5
+        result = MATCHERS["census-sgm"](scene.left[..., 0], scene.right[..., 0], max_disp=scene.max_disp, min_disp=0,
+                                        preprocess="none")
+        both = result.valid & scene.nonocc
+        assert np.mean(np.abs(result.disparity - scene.disparity)[both] < 0.5) > 0.9
+
+
+def test_mini_msir_pseudo_truth_is_cached_and_the_cache_is_never_needed(mini_msir, monkeypatch, tmp_path):
+    """Built once and read back while the data is unchanged; built again once a data file
+    changes; built all the same, with the same result, when the cache cannot be written."""
+    built, build = [], msir.pseudo_ground_truth
+
+    def counted(*args, **kwargs):
+        built.append(1)
+        return build(*args, **kwargs)
+
+    monkeypatch.setattr(msir, "pseudo_ground_truth", counted)
+    first, unit = msir.reference_truth(mini_msir, 4)
+    again, _ = msir.reference_truth(mini_msir, 4)
+    assert len(built) == 1 and unit == 0.04 and np.isfinite(first).mean() > 0.3
+    assert len(list((tmp_path / "cache" / "msir-outdoor").glob("pseudo-gt-cam4-*.npy"))) == 1
+    np.testing.assert_array_equal(again, first)
+    image = mini_msir / "scene" / "Cam-3.png"
+    stat = image.stat()
+    os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))  # a data file changed: another key
+    msir.reference_truth(mini_msir, 4)
+    assert len(built) == 2
+    (tmp_path / "blocked").write_text("a file where the cache folder would be")
+    monkeypatch.setenv(msir.CACHE_ENV, str(tmp_path / "blocked"))
+    rebuilt, _ = msir.reference_truth(mini_msir, 4)
+    assert len(built) == 3
+    np.testing.assert_array_equal(rebuilt, first)
+
+
+def test_mini_msir_bad_layout_is_one_clear_error(mini_msir):
+    np.save(mini_msir / "calibration" / "corners.npy", np.zeros((9, 8)))
+    with pytest.raises(CadeError, match=r"holds shape \(9, 8\), not \(9, N, 2\)"):
+        msir.msir_rig(mini_msir)
+    (mini_msir / "camera_array.json").write_text('{"Camera 0": {"X": 40}}')
+    np.save(mini_msir / "calibration" / "corners.npy", np.zeros((9, 8, 2)))
+    with pytest.raises(CadeError, match="no complete 'Camera 0'"):
+        msir.msir_rig(mini_msir)
 
 
 # --- msir-outdoor: the real data (skipped without it) ------------------------------------

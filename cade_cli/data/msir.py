@@ -84,17 +84,23 @@ def msir_rig(folder: Path) -> tuple[Rig, list[float]]:
         corners = np.load(folder / "calibration" / "corners.npy")
     except (OSError, ValueError) as error:
         raise CadeError(f"cannot read the MSIR layout in {folder}: {error}; expected {LAYOUT}") from None
+    if corners.ndim != 3 or corners.shape[0] != 9 or corners.shape[2] != 2:
+        raise CadeError(f"{folder / 'calibration' / 'corners.npy'} holds shape {corners.shape}, not (9, N, 2) "
+                        "points per camera; use the data set's file")
     cameras, residuals = [], []
     for index in range(len(corners)):
-        entry = layout.get(f"Camera {index}")
-        if entry is None:
-            raise CadeError(f"{folder / 'camera_array.json'} has no 'Camera {index}'; use the data set's file")
         mapping, rms = plane_mapping_from_points(corners[index], corners[CALIBRATION_REFERENCE])
         if index == CALIBRATION_REFERENCE:
             mapping = PlaneMapping("affine", np.array([[1.0, 0, 0], [0, 1.0, 0]]))  # exactly the identity
-        cameras.append(Camera(
-            name=f"Cam-{index}", band=f"cam{index}", image_size=(entry["image_width"], entry["image_height"]),
-            to_reference=mapping, position=(entry["X"] / 1000.0, -entry["Y"] / 1000.0)))
+        try:
+            entry = layout[f"Camera {index}"]
+            size = (int(entry["image_width"]), int(entry["image_height"]))
+            position = (float(entry["X"]), float(entry["Y"]))
+        except (KeyError, TypeError, ValueError):
+            raise CadeError(f"{folder / 'camera_array.json'} has no complete 'Camera {index}' (image_width, "
+                            "image_height, X, Y); use the data set's file") from None
+        cameras.append(Camera(name=f"Cam-{index}", band=f"cam{index}", image_size=size, to_reference=mapping,
+                              position=(position[0] / 1000.0, -position[1] / 1000.0)))
         residuals.append(rms)
     return Rig(reference=f"Cam-{CALIBRATION_REFERENCE}", cameras=tuple(cameras)), residuals
 
@@ -175,10 +181,13 @@ def reference_truth(folder: Path, reference: int, *, partners: tuple[int, ...] |
     path = None
     if cache and window is None:
         path = cache_folder() / NAME / f"pseudo-gt-cam{reference}-{_cache_key(folder, reference, partners)}.npy"
+        width, height = rig.reference_camera.image_size
         try:
-            return np.load(path, allow_pickle=False).astype(np.float32), unit
+            cached = np.load(path, allow_pickle=False)
+            if cached.shape == (height, width):
+                return cached.astype(np.float32), unit
         except (OSError, ValueError):
-            pass
+            pass  # missing or unreadable: built again
     images = {f"Cam-{i}": read_camera(folder, i) for i in partners}
     images[f"Cam-{reference}"] = _crop(read_camera(folder, reference), window)
     truth = pseudo_ground_truth(_windowed(rig, window), images, [f"Cam-{i}" for i in partners])
