@@ -186,7 +186,7 @@ def reference_truth(folder: Path, reference: int, *, partners: tuple[int, ...] |
             cached = np.load(path, allow_pickle=False)
             if cached.shape == (height, width):
                 return cached.astype(np.float32), unit
-        except (OSError, ValueError):
+        except (OSError, ValueError, EOFError):
             pass  # missing or unreadable: built again
     images = {f"Cam-{i}": read_camera(folder, i) for i in partners}
     images[f"Cam-{reference}"] = _crop(read_camera(folder, reference), window)
