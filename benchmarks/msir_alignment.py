@@ -7,11 +7,12 @@ and the alignment of the affine-only registration against cade's, without ground
     cade array-score msir-affine.tif msir-cade.tif
     python benchmarks/msir_alignment.py report msir-affine.tif msir-cade.tif --pictures docs/rigs
 
-The data set documents no bands (NOTES.md), so the cameras' bands are named "cam0" ..
-"cam8". Each camera's ``to_reference`` is the least-squares affine from its 8 hand-picked
-façade points (calibration/corners.npy) onto Cam-4's, as the MSIR code fits it (there with
-RANSAC; all 8 points are inliers). Positions come from camera_array.json (mm, X = +40 to
-the image's right, Y = +40 the top row), written in the rig's image axes: [X, -Y] / 1000 m.
+The rig is :func:`cade_cli.data.msir.msir_rig` (the msir-outdoor benchmark dataset builds it
+too): bands "cam0" .. "cam8" (the data set documents none); each camera's ``to_reference`` is
+the least-squares affine from its 8 hand-picked façade points (calibration/corners.npy) onto
+Cam-4's, as the MSIR code fits it (there with RANSAC; all 8 points are inliers); positions from
+camera_array.json (mm, X = +40 to the image's right, Y = +40 the top row), in the rig's image
+axes: [X, -Y] / 1000 m.
 The MSIR data is for development and tests only: nothing of it is written to the
 repository but small derived pictures.
 """
@@ -19,21 +20,18 @@ repository but small derived pictures.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from cade_cli.data.msir import msir_rig
 from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs
 from cade_cli.rigs.array_cube import false_colour, read_array_cube
-from cade_cli.rigs.array_geometry import plane_mapping_from_points
 from cade_cli.rigs.array_score import score_cubes
-from cade_cli.rigs.rig import Camera, PlaneMapping, Rig
 from cade_cli.rigs.rig_file import save_rig
 
-REFERENCE = 4
 PICTURE_WIDTH = 512
 FALSE_COLOUR = ("Cam-0", "Cam-4", "Cam-8")
 """Red, green, blue: a near-infrared-looking top-left camera, the reference and the
@@ -41,23 +39,6 @@ bottom-right camera: two diagonal baselines, so parallax left over shows in both
 CROP = (slice(170, 330), slice(560, 920))
 """Rows, columns of the zoom (shown 2x): the forest behind the façade plane and the tower on
 the roof, where the parallax left by the affine registration is largest."""
-
-
-def msir_rig(folder: Path) -> tuple[Rig, list[float]]:
-    """The plane-registered rig of an MSIR scene folder, and each camera's affine RMS (px)."""
-    layout = json.loads((folder / "camera_array.json").read_text())
-    corners = np.load(folder / "calibration" / "corners.npy")
-    cameras, residuals = [], []
-    for index in range(len(corners)):
-        entry = layout[f"Camera {index}"]
-        mapping, rms = plane_mapping_from_points(corners[index], corners[REFERENCE])
-        if index == REFERENCE:
-            mapping = PlaneMapping("affine", np.array([[1.0, 0, 0], [0, 1.0, 0]]))  # exactly the identity
-        cameras.append(Camera(
-            name=f"Cam-{index}", band=f"cam{index}", image_size=(entry["image_width"], entry["image_height"]),
-            to_reference=mapping, position=(entry["X"] / 1000.0, -entry["Y"] / 1000.0)))
-        residuals.append(rms)
-    return Rig(reference=f"Cam-{REFERENCE}", cameras=tuple(cameras)), residuals
 
 
 def _small(picture: np.ndarray) -> np.ndarray:

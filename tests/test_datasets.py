@@ -67,7 +67,7 @@ def test_get_dataset_unknown_name_lists_choices():
 
 def test_registry_holds_every_reader():
     assert set(DATASETS) == {"middlebury05", "middlebury06", "middlebury14", "middeval3", "flyingthings3d",
-                             "kitti2015", "kitti2012", "folder"}
+                             "kitti2015", "kitti2012", "msir-outdoor", "folder"}
 
 
 # --- Middlebury 2005 / 2006 ---------------------------------------------------------------
@@ -365,7 +365,8 @@ def test_missing_root_is_an_error(tmp_path, dataset):
 
 @pytest.mark.parametrize(("dataset", "expected"), [
     ("middlebury05", "view1.png"), ("middlebury14", "disp0GT.pfm"), ("flyingthings3d", "frames_cleanpass"),
-    ("kitti2015", "image_2"), ("kitti2012", "colored_0"), ("folder", "left, right, gt"),
+    ("kitti2015", "image_2"), ("kitti2012", "colored_0"), ("msir-outdoor", "corners.npy"),
+    ("folder", "left, right, gt"),
 ])
 def test_no_scenes_names_the_expected_layout(tmp_path, dataset, expected):
     (tmp_path / "unrelated").mkdir()

@@ -172,6 +172,7 @@ def test_official_urls():
     ("name", "kwargs", "fragment"),
     [
         ("flyingthings3d", {}, "hundreds of GB"),
+        ("msir-outdoor", {}, "carries no licence"),
         ("kitti2015", {"resolution": "Q"}, "drop --resolution"),
         ("middlebury14", {"resolution": "X"}, "use one of Q, H, F"),
         ("middlebury05", {"scenes": ["Computer"]}, "choose from Art"),

@@ -14,10 +14,10 @@ from cade_cli.cli.options import BENCHMARK_METHODS, StepBar, check_output, print
 
 
 def benchmark(
-    dataset: Annotated[str, typer.Option("--dataset", "-d", help="middlebury05, middlebury06, middlebury14, flyingthings3d, kitti2012, kitti2015 or folder.")],
+    dataset: Annotated[str, typer.Option("--dataset", "-d", help="middlebury05, middlebury06, middlebury14, flyingthings3d, kitti2012, kitti2015, msir-outdoor or folder.")],
     data_dir: Annotated[Path, typer.Option("--data-dir", help="Folder holding the dataset in its official layout.")],
     methods: Annotated[str, typer.Option("--methods", help="Comma-separated matchers.")] = ",".join(BENCHMARK_METHODS),
-    protocol: Annotated[str, typer.Option("--protocol", help="Comma-separated: cs (six band pairs), rgb (median of R/G/B), native (grey pair).")] = "cs,rgb",
+    protocol: Annotated[Optional[str], typer.Option("--protocol", help="Comma-separated: cs (six band pairs), rgb (median of R/G/B), native (grey pair). Default: cs,rgb; native for msir-outdoor (its pairs are already cross-spectral).", show_default=False)] = None,
     preprocess: Annotated[str, typer.Option("--preprocess", help="Comma-separated: none, cade, auto.")] = "none,cade",
     scenes: Annotated[Optional[str], typer.Option("--scenes", help="Comma-separated scene names (default: all).")] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", min=1, help="Worker processes.")] = 1,
@@ -38,6 +38,7 @@ def benchmark(
     from rich.console import Console
     from rich.table import Table
 
+    from cade_cli.data import get_dataset
     from cade_cli.errors import CadeError
     from cade_cli.evaluation.album import TILE_WIDTH
     from cade_cli.evaluation.html_report import html_report
@@ -46,6 +47,8 @@ def benchmark(
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
+    if protocol is None:
+        protocol = ",".join(get_dataset(dataset).default_protocols)
     for path, suffixes in ((json_file, (".json",)), (report, (".md",)), (html, (".html", ".htm"))):
         if path is not None:
             check_output(path, suffixes=suffixes, inputs=())

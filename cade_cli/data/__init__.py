@@ -2,7 +2,7 @@
 
 One registry, :data:`DATASETS`: name -> :class:`Dataset`. Each entry is built in its
 family's module (:mod:`~cade_cli.data.middlebury`, :mod:`~cade_cli.data.kitti`,
-:mod:`~cade_cli.data.flyingthings3d`, :mod:`~cade_cli.data.folder`) from one set of layout
+:mod:`~cade_cli.data.flyingthings3d`, :mod:`~cade_cli.data.msir`, :mod:`~cade_cli.data.folder`) from one set of layout
 constants, which both its reader and its archive list (:class:`DatasetSource`) use.
 :mod:`~cade_cli.data.fetch` fetches, resumes, verifies and unpacks archives without
 knowing any dataset.

@@ -20,6 +20,7 @@ from cade_cli.data.flyingthings3d import FLYINGTHINGS3D
 from cade_cli.data.folder import FOLDER
 from cade_cli.data.kitti import KITTI2012, KITTI2015
 from cade_cli.data.middlebury import MIDDEVAL3, MIDDLEBURY05, MIDDLEBURY06, MIDDLEBURY14
+from cade_cli.data.msir import MSIR_OUTDOOR
 from cade_cli.errors import CadeError, lookup
 from cade_cli.io.atomic import check_writable_folder
 
@@ -28,7 +29,8 @@ if TYPE_CHECKING:
 
 DATASETS: dict[str, Dataset] = {
     dataset.name: dataset
-    for dataset in (MIDDLEBURY05, MIDDLEBURY06, MIDDLEBURY14, MIDDEVAL3, KITTI2012, KITTI2015, FLYINGTHINGS3D, FOLDER)
+    for dataset in (MIDDLEBURY05, MIDDLEBURY06, MIDDLEBURY14, MIDDEVAL3, KITTI2012, KITTI2015, FLYINGTHINGS3D,
+                    MSIR_OUTDOOR, FOLDER)
 }
 """Dataset name -> reader and source."""
 

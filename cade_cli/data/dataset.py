@@ -135,6 +135,8 @@ class Dataset:
         resolutions: values the ``resolution`` option accepts (empty: none).
         download: where the official archives come from (they land in ``subfolders[0]``);
             None for layouts that are not one published dataset (``folder``, ``middeval3``).
+        grey: its scenes are one band per view, already of two spectral bands (stacked to
+            3 equal channels in :class:`Scene`): only the ``native`` protocol applies.
     """
 
     name: str
@@ -143,6 +145,13 @@ class Dataset:
     list_scenes: SceneLister
     resolutions: tuple[str, ...] = ()
     download: DatasetSource | None = None
+    grey: bool = False
+
+    @property
+    def default_protocols(self) -> tuple[str, ...]:
+        """The evaluation protocols a benchmark runs when none is named: the paper's two
+        (``cs``, ``rgb``) on colour pairs, ``native`` on :attr:`grey` ones."""
+        return ("native",) if self.grey else ("cs", "rgb")
 
     def scene_names(self, root: Path, *, resolution: str | None = None) -> list[str]:
         """Names of the scenes under ``root``, sorted; no image is read.

@@ -309,6 +309,10 @@ def run_benchmark(
     for name in plan.degradations:
         lookup(DEGRADATIONS, name, kind="degradation")
     reader = get_dataset(dataset)
+    if reader.grey and set(protocols) - {"native"}:
+        others = ", ".join(name for name in protocols if name != "native")
+        raise CadeError(f"{dataset} pairs are already of two spectral bands, one band per view: only protocol "
+                        f"native applies (not {others}); use --protocol native")
     if scenes:
         reader(Path(data_dir), scenes=scenes)  # checks the names; loads nothing
     scene_names = [name for name in reader.scene_names(Path(data_dir)) if not scenes or name in set(scenes)]
