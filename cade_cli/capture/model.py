@@ -1,0 +1,141 @@
+"""A capture as a rig: its band files (any order) sorted by rig index, the reference band, the
+common pinhole frame the bands are registered in, and where each frame's pixels fall in each
+raw band image (undistortion and lens rotation, optionally a residual homography and a shift).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from cade_cli.capture.lens import BrownLens
+from cade_cli.capture.metadata import RIG_OPTION, BandFile, read_band_file
+from cade_cli.errors import CadeError
+
+DEFAULT_REFERENCE = "Green"
+"""The vendors' reference band (MicaSense and Parrot align onto Green)."""
+
+
+@dataclass(frozen=True)
+class Capture:
+    """The bands of one shot.
+
+    Attributes:
+        bands: one :class:`BandFile` per band, in rig-index order (the capture's band order).
+        reference: index into ``bands`` of the reference band.
+    """
+
+    bands: tuple[BandFile, ...]
+    reference: int
+
+    @property
+    def reference_band(self) -> BandFile:
+        return self.bands[self.reference]
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of every band, px."""
+        return self.reference_band.size
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsics of the common pinhole frame: the reference lens's focal length and
+        principal point, the raw image's size."""
+        lens = self.reference_band.lens
+        return np.array([[lens.focal, 0, lens.centre[0]], [0, lens.focal, lens.centre[1]], [0, 0, 1]], np.float64)
+
+    def names(self) -> list[str]:
+        return [band.name for band in self.bands]
+
+
+def _from_rig(band: BandFile, rig) -> BandFile:
+    """``band`` with the lens and rotation of the rig camera of the same band (or name)."""
+    for camera in rig.cameras:
+        if band.name.lower() in (camera.band.lower(), camera.name.lower()):
+            if camera.K is None or camera.R is None:
+                raise CadeError(f"camera {camera.name} of the rig has no K and R; give a calibrated rig with "
+                                f"{RIG_OPTION}")
+            dist = np.zeros(5)
+            dist[:min(5, len(camera.distortion))] = camera.distortion[:5]
+            K = camera.K
+            lens = BrownLens(float((K[0, 0] + K[1, 1]) / 2), (float(K[0, 2]), float(K[1, 2])),
+                             dist[0], dist[1], dist[4], dist[2], dist[3])
+            return replace(band, lens=lens, rotation=np.asarray(camera.R, np.float64))
+    raise CadeError(f"the rig has no camera for band {band.name!r} (its cameras: "
+                    f"{', '.join(c.band for c in rig.cameras)}); name the camera's band {band.name!r} in the rig")
+
+
+def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, rig=None) -> Capture:
+    """The :class:`Capture` of a shot's band files.
+
+    Args:
+        paths: the band files, any order (one per band).
+        reference: the reference band's name (case-insensitive); None: Green.
+        rig: a :class:`~cade_cli.rigs.rig.Rig` whose calibrated cameras (matched by band
+            name) give the lenses and rotations instead of the files' metadata.
+
+    Raises:
+        CadeError: fewer than two files, bands of different shots (capture ids) or sizes, a
+            band given twice, an unknown reference, or metadata missing (one line naming it).
+    """
+    if len(paths) < 2:
+        raise CadeError(f"a capture needs two band files or more, got {len(paths)}; give every band of the shot "
+                        "(e.g. IMG_0001_*.tif)")
+    bands = [read_band_file(path, need_geometry=rig is None) for path in paths]
+    if rig is not None:
+        bands = [_from_rig(band, rig) for band in bands]
+    bands.sort(key=lambda band: band.rig_index)
+    ids = {band.capture_id for band in bands if band.capture_id}
+    if len(ids) > 1:
+        raise CadeError(f"the files come from {len(ids)} captures (capture ids {', '.join(sorted(ids))}); give the "
+                        "band files of one shot")
+    for first, second in zip(bands, bands[1:]):
+        if first.rig_index == second.rig_index or first.name == second.name:
+            raise CadeError(f"{first.path.name} and {second.path.name} are the same band ({first.name}, rig index "
+                            f"{first.rig_index}); give each band once")
+    sizes = {band.size for band in bands}
+    if len(sizes) > 1:
+        raise CadeError(f"the band files differ in size ({', '.join(f'{w}x{h}' for w, h in sorted(sizes))}); "
+                        "give the band files of one camera")
+    wanted = (reference or DEFAULT_REFERENCE).lower()
+    matches = [i for i, band in enumerate(bands) if band.name.lower() == wanted]
+    if not matches:
+        option = "--reference NAME" if reference is None else "--reference"
+        raise CadeError(f"the capture has no band {reference or DEFAULT_REFERENCE!r} (its bands: "
+                        f"{', '.join(b.name for b in bands)}); choose one with {option}")
+    return Capture(tuple(bands), matches[0])
+
+
+def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
+                homography: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where common-frame pixels (x, y) fall in band ``index``'s raw image.
+
+    The pixel becomes a ray of the reference camera (``K^-1``), optionally after the residual
+    ``homography`` (common-frame px -> px of the band rotated into the reference, 3x3), is
+    turned into the band's camera by its lens rotation and projected through its lens.
+
+    Returns:
+        (u, v) float32 arrays of the shape of ``x``; NaN behind the camera.
+    """
+    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
+    points = np.stack([x.ravel(), y.ravel(), np.ones(x.size)])
+    if homography is not None:
+        points = homography @ points
+    band = capture.bands[index]
+    rotation = band.rotation @ capture.reference_band.rotation.T  # reference camera -> this band's
+    rays = rotation @ (np.linalg.inv(capture.K) @ points)
+    behind = rays[2] <= 1e-9
+    z = np.where(behind, 1.0, rays[2])
+    u, v = band.lens.pixels(rays[0] / z, rays[1] / z)
+    u[behind] = v[behind] = np.nan
+    return u.reshape(x.shape).astype(np.float32), v.reshape(x.shape).astype(np.float32)
+
+
+def reference_frame_pixels(capture: Capture, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Common-frame pixels (x, y) of the reference band's raw pixels (u, v): its undistortion."""
+    x, y = capture.reference_band.lens.rays(np.asarray(u, np.float64), np.asarray(v, np.float64))
+    K = capture.K
+    return (K[0, 0] * x + K[0, 2]).astype(np.float32), (K[1, 1] * y + K[1, 2]).astype(np.float32)
