@@ -134,7 +134,7 @@ class _Fields:
         return values[:count]
 
     def pixel_pitch(self) -> float:
-        """Pixels per mm from EXIF FocalPlaneXResolution (unit 4 = mm, 3 = cm)."""
+        """Pixels per mm from EXIF (or TIFF/EP) FocalPlaneXResolution (unit 4 = mm, 3 = cm)."""
         value, unit = self.exif.get("FocalPlaneXResolution"), self.exif.get("FocalPlaneResolutionUnit", 4)
         if not value or unit not in (3, 4):
             raise self.missing("EXIF FocalPlaneXResolution (in mm or cm)", f"give the lenses with {RIG_OPTION}")
@@ -200,6 +200,9 @@ def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
         raise CadeError(f"{path.name}: no XMP packet (TIFF tag 700) with the camera's band tags; "
                         f"give the camera's own files, or the geometry with {RIG_OPTION} and the files' band tags")
     exif = dict(tags.get(34665) or {})
+    for code, name in ((37390, "FocalPlaneXResolution"), (37392, "FocalPlaneResolutionUnit"), (37386, "FocalLength")):
+        if name not in exif and code in tags:  # TIFF/EP keeps them in the image's own tags
+            exif[name] = tags[code]
     exif["_make"] = str(tags.get(271, "")).strip()
     fields = _Fields(path, xmp, exif)
     name = fields.text("Camera:BandName", "give the camera's own files (the band name is in their XMP)")

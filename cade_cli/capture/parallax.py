@@ -22,12 +22,15 @@ MIN_MATCHES = 12
 """Fewer matches than this: no plane is fitted (the rotation alone stays)."""
 PLANE_THRESHOLD = 1.5
 """RANSAC reprojection threshold of the plane homography, px."""
-LINE_TOLERANCE = 1.0
-"""A match lies on a parallax direction when its residual is within this many px of the line."""
+LINE_TOLERANCE = 0.5
+"""A match lies on a parallax direction when its residual is within this many px of the line
+(the refined matches are good to about a tenth of a pixel)."""
+MIN_OFF_PLANE = 1.0
+"""Matches whose residual from the plane is longer than this (px) show the parallax's direction."""
 DIRECTION_STEP_DEG = 0.5
 CHEAP_PARALLAX = 0.3
-"""Below this parallax (px, each way from the plane, robust extremes of the matches) the band
-is registered by the plane homography alone: a high flight."""
+"""Below this parallax (px, each way from the plane: half the spread of the matches' 5th to
+95th percentile) the band is registered by the plane homography alone: a high flight."""
 
 
 MATCH_SCALE = 0.5
@@ -141,77 +144,118 @@ def plane_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarra
 
 @dataclass(frozen=True)
 class Parallax:
-    """The parallax a plane homography leaves between a band and the reference.
+    """The parallax between a band (its lens rotation applied) and the reference.
+
+    The band sees the scene point at reference pixel p at ``p + across(p)·normal − d(p)·baseline``
+    in the common frame: ``d`` is the parallax (px, larger for nearer points, 0 at infinity)
+    and ``across`` a small affine field across the baseline (what the lens rotations in the
+    files leave: a fraction of a pixel to a few).
 
     Attributes:
         baseline: (2,) unit vector (x right, y down): the band's lens lies that way from the
-            reference's, so a point nearer than the plane at reference pixel p is seen by the
-            band at ``p - d·baseline`` with d > 0 (the project's ``I_left(x) ≈ I_right(x − d)``
-            once the baseline is turned to +x).
+            reference's (the project's ``I_left(x) ≈ I_right(x − d)`` once it is turned to +x).
+        across: (3,) coefficients (a, b, c) of ``across(x, y) = a + b·x + c·y``, px.
         low, high: robust extremes (1st and 99th percentiles) of d over the matches, px.
+        spread: robust half-spread of the matches' residuals from the plane homography, px
+            (half the distance between the 5th and 95th percentiles of their length along
+            the baseline): how far the plane alone is off.
         matches: how many matches measured it.
-        measured: False when the matches show no parallax direction (the plane explains them).
     """
 
     baseline: np.ndarray
+    across: np.ndarray
     low: float
     high: float
+    spread: float
     matches: int
-    measured: bool
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(2,) unit vector across the baseline."""
+        return np.array([-self.baseline[1], self.baseline[0]])
 
     @property
     def negligible(self) -> bool:
-        """True when the parallax stays within :data:`CHEAP_PARALLAX` px of the plane everywhere."""
-        return not self.measured or max(abs(self.low), abs(self.high)) < CHEAP_PARALLAX
+        """True when the plane leaves less than :data:`CHEAP_PARALLAX` px: the cheap path."""
+        return self.spread < CHEAP_PARALLAX
+
+    def across_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``across(x, y)``, px, float32 of the shape of ``x``."""
+        a, b, c = self.across
+        return (a + b * np.asarray(x, np.float64) + c * np.asarray(y, np.float64)).astype(np.float32)
 
 
-def _direction(residuals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The direction most residual vectors lie along (those longer than the tolerance vote):
-    ((2,) unit vector, (N,) bool on the line)."""
-    length = np.hypot(residuals[:, 0], residuals[:, 1])
-    voters = length > 2 * LINE_TOLERANCE
-    angles = np.radians(np.arange(0, 180, DIRECTION_STEP_DEG))
-    directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (A, 2)
-    across = np.abs(residuals[voters] @ np.stack([-directions[:, 1], directions[:, 0]], axis=1).T)  # (V, A)
-    best = directions[int(np.argmax((across <= LINE_TOLERANCE).sum(axis=0)))]
-    on_line = np.abs(residuals @ np.array([-best[1], best[0]])) <= LINE_TOLERANCE
-    support = residuals[on_line & voters]
-    if len(support) >= 3:  # refine: the principal axis of the supporting residuals
-        _, vectors = np.linalg.eigh(support.T @ support)
-        best = vectors[:, -1] * np.sign(vectors[:, -1] @ best)
-        on_line = np.abs(residuals @ np.array([-best[1], best[0]])) <= LINE_TOLERANCE
-    return best, on_line
+def _fit_across(points: np.ndarray, across: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Least-squares (a, b, c) of ``across ≈ a + b x + c y`` for every column of ``across``
+    (N, A) over the rows ``keep`` (N, A) marks: (3, A)."""
+    design = np.stack([np.ones(len(points)), points[:, 0], points[:, 1]], axis=1)
+    fits = np.zeros((3, across.shape[1]))
+    for column in range(across.shape[1]):
+        rows = keep[:, column]
+        if rows.sum() >= 3:
+            fits[:, column] = np.linalg.lstsq(design[rows], across[rows, column], rcond=None)[0]
+    return fits
 
 
-def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homography: np.ndarray,
-                     *, min_support: int = 8) -> Parallax:
-    """The parallax direction and range of a band from its matches with the reference.
+SUPPORT_SHARE = 0.9
+"""Directions whose fit keeps at least this share of the best one's matches are equally good;
+of those the one with the smallest across offset (at the matches' centre) is taken."""
 
-    The residual of each match is taken in the reference frame (the band point mapped back
-    by ``homography``, minus the reference point). The direction most residuals lie along is
-    the baseline's; its sign makes the parallax relative to the rotation alone (the
-    homography's identity: points at infinity) positive, i.e. nearer points have larger d.
 
-    Args:
-        points_reference, points_band: (N, 2) matches in the common frame.
-        homography: (3, 3) reference px -> band px (:func:`plane_from_matches`).
-        min_support: fewer matches off the plane along one direction than this: no parallax.
+def _best_direction(points: np.ndarray, raw: np.ndarray, angles: np.ndarray,
+                    keep: np.ndarray | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+    """Of ``angles`` (radians), the index of the best direction, its across fit (3,) and its
+    supporting matches (N,) bool: the affine across each direction is fitted to the matches
+    near its median (or ``keep``, (N, A)), then to those within :data:`LINE_TOLERANCE`; of the
+    directions supported by :data:`SUPPORT_SHARE` of the most, the one whose across field is
+    smallest at the matches' centre (what the lens rotations in the files say comes first: a
+    scene at one depth leaves the direction and a constant offset undecided)."""
+    normals = np.stack([-np.sin(angles), np.cos(angles)], axis=1)  # (A, 2)
+    design = np.stack([np.ones(len(points)), points[:, 0], points[:, 1]], axis=1)
+    across = raw @ normals.T  # (N, A)
+    if keep is None:
+        keep = np.abs(across - np.median(across, axis=0)) <= 4 * LINE_TOLERANCE
+    for _ in range(2):
+        fits = _fit_across(points, across, keep)
+        keep = np.abs(across - design @ fits) <= LINE_TOLERANCE
+    support = keep.sum(axis=0)
+    centre = np.array([1.0, *points.mean(axis=0)]) @ fits  # (A,)
+    candidates = np.flatnonzero(support >= SUPPORT_SHARE * support.max())
+    best = int(candidates[np.argmin(np.abs(centre[candidates]))])
+    return best, fits[:, best], keep[:, best]
+
+
+def _direction(points: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The baseline direction and across field that most displacements (``raw``, (N, 2), of the
+    rotation alone, at reference ``points``) fit (:func:`_best_direction`): every direction in
+    steps of :data:`DIRECTION_STEP_DEG`, then a tenth of that around the best. Returns
+    (direction (2,), across (3,), (N,) bool supporting)."""
+    angles = np.radians(np.arange(0, 360, DIRECTION_STEP_DEG))
+    best, _, supporting = _best_direction(points, raw, angles)
+    fine = angles[best] + np.radians(np.linspace(-DIRECTION_STEP_DEG, DIRECTION_STEP_DEG, 21))
+    chosen, across, supporting = _best_direction(points, raw, fine, np.repeat(supporting[:, None], len(fine), axis=1))
+    return np.array([np.cos(fine[chosen]), np.sin(fine[chosen])]), across, supporting
+
+
+def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homography: np.ndarray) -> Parallax:
+    """The parallax direction, range and across field of a band from its matches with the
+    reference (in the common frame, the band's lens rotation applied), and how far the plane
+    ``homography`` (reference px -> band px, :func:`plane_from_matches`) is off.
+
+    The lens translations are not in the files, so a scene point is displaced from the
+    reference to the band by ``d·(−baseline)`` with d the larger the nearer the point: the
+    displacements of the matches lie along one line, up to what the lens rotations leave
+    (the across field). :func:`_direction` finds it; the sign makes d >= 0.
     """
-    if len(points_reference) == 0:
-        return Parallax(np.array([1.0, 0.0]), 0.0, 0.0, 0, False)
-    back = cv2.perspectiveTransform(points_band.reshape(-1, 1, 2), np.linalg.inv(homography)).reshape(-1, 2)
-    residuals = back - points_reference
-    direction, on_line = _direction(residuals)
-    off_plane = on_line & (np.hypot(residuals[:, 0], residuals[:, 1]) > 2 * LINE_TOLERANCE)
-    if off_plane.sum() < min_support:
-        along = -(residuals[on_line] @ direction)
-        low, high = (np.percentile(along, [1, 99]) if len(along) else (0.0, 0.0))
-        return Parallax(direction, float(low), float(high), int(on_line.sum()), False)
-    # Sign: the displacement relative to the rotation alone (the common frame, no homography) is
-    # -d·baseline with d >= 0 for every point in front of the camera.
+    if len(points_reference) < MIN_MATCHES:
+        return Parallax(np.array([1.0, 0.0]), np.zeros(3), 0.0, 0.0, 0.0, len(points_reference))
     raw = points_band - points_reference
-    if np.median(raw[on_line] @ direction) > 0:
-        direction = -direction
-    along = -(residuals[on_line] @ direction)
+    direction, across, supporting = _direction(points_reference, raw)
+    if np.median(raw[supporting] @ direction) > 0:
+        direction, across = -direction, -across  # the normal turns with the direction
+    along = -(raw[supporting] @ direction)
     low, high = np.percentile(along, [1, 99])
-    return Parallax(direction, float(low), float(high), int(on_line.sum()), True)
+    back = cv2.perspectiveTransform(points_band.reshape(-1, 1, 2), np.linalg.inv(homography)).reshape(-1, 2)
+    from_plane = (back - points_reference)[supporting] @ direction
+    p5, p95 = np.percentile(from_plane, [5, 95])
+    return Parallax(direction, across, float(low), float(high), float((p95 - p5) / 2), int(supporting.sum()))

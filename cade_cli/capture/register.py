@@ -44,7 +44,8 @@ class BandResult:
         name: band name.
         path: ``"reference"``, ``"plane-only"``, ``"plane"`` (the parallax was below the cheap
             path's threshold) or ``"parallax"``.
-        homography: (3, 3) common-frame px of the reference -> of the band (rotation removed).
+        homography: (3, 3) common-frame px of the reference -> of the band (rotation removed):
+            the plane the ``plane-only`` and ``plane`` paths use.
         parallax: what the matches showed (None for the reference and ``--plane-only``).
         search: (min, max) disparity searched, px (None without the dense step).
         matches: sparse matches used.
@@ -73,6 +74,8 @@ class CaptureRegistration:
         saturated: one (H, W) bool per band: the sample touches a raw pixel at the sensor's
             maximum (:func:`saturation_level`).
         results: one :class:`BandResult` per band.
+        sampled: one ((H, W) float32 u, v) per band: where each output pixel was sampled in the
+            band's raw image (the reference's own grid for the reference).
         seconds: wall time of the registration.
     """
 
@@ -82,6 +85,7 @@ class CaptureRegistration:
     valid: tuple[np.ndarray, ...]
     saturated: tuple[np.ndarray, ...]
     results: tuple[BandResult, ...]
+    sampled: tuple[tuple[np.ndarray, np.ndarray], ...]
     seconds: float
 
 
@@ -123,7 +127,7 @@ def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray,
 
 def _search(parallax: Parallax) -> tuple[int, int]:
     margin = max(RANGE_MARGIN_PX, RANGE_MARGIN_SHARE * (parallax.high - parallax.low))
-    return math.floor(min(parallax.low, 0) - margin), math.ceil(max(parallax.high, 0) + margin)
+    return math.floor(parallax.low - margin), math.ceil(parallax.high + margin)
 
 
 def _dense_disparity(reference: np.ndarray, warped: np.ndarray, inside: np.ndarray, name: str,
@@ -157,7 +161,9 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     parallax = measure_parallax(points_reference, points_band, homography)
     if parallax.negligible:
         return BandResult(name, "plane", homography, parallax, None, len(points_reference)), None, None
-    warped, inside = _remap(raw_band, *band_pixels(capture, index, x, y, homography))
+    across = parallax.across_at(x, y)
+    warped, inside = _remap(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
+                                                     y + across * np.float32(parallax.normal[1])))
     search = _search(parallax)
     disparity, trusted = _dense_disparity(reference, warped, inside, name, parallax, search, method=method,
                                           scale=scale, model=model)
@@ -192,7 +198,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     reference, _ = _remap(signal[ref_index], *band_pixels(capture, ref_index, x, y))
     reference_features = band_features(reference)
     px, py = reference_frame_pixels(capture, x, y)  # the output grid (reference raw px) in the common frame
-    bands, valid, saturated, results = [], [], [], []
+    bands, valid, saturated, results, sampled = [], [], [], [], []
     for index, band in enumerate(capture.bands):
         level = saturation_level(raw[index])
         if index == ref_index:
@@ -200,25 +206,31 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             bands.append(raw[index].astype(np.float32))
             valid.append(np.ones(raw[index].shape, bool))
             saturated.append(raw[index] >= level)
+            sampled.append((x, y))
         else:
             result, disparity, trusted = _band_geometry(capture, index, signal[index], reference, reference_features,
                                                         (x, y), plane_only=plane_only, method=method, scale=scale,
                                                         model=model)
-            qx, qy, seen = px, py, np.ones(px.shape, bool)
-            if disparity is not None:
+            if disparity is None:
+                u, v = band_pixels(capture, index, px, py, result.homography)
+                seen = np.ones(px.shape, bool)
+            else:
                 d, in_frame = _remap(disparity, px, py)
                 seen = in_frame & (cv2.remap(trusted.astype(np.uint8), px, py, cv2.INTER_NEAREST) > 0)
-                qx = px - d * np.float32(result.parallax.baseline[0])
-                qy = py - d * np.float32(result.parallax.baseline[1])
-            u, v = band_pixels(capture, index, qx, qy, result.homography)
+                parallax = result.parallax
+                shift = parallax.across_at(px, py)
+                u, v = band_pixels(capture, index,
+                                   px + shift * np.float32(parallax.normal[0]) - d * np.float32(parallax.baseline[0]),
+                                   py + shift * np.float32(parallax.normal[1]) - d * np.float32(parallax.baseline[1]))
             values, inside = _remap(raw[index], u, v)
             touched, _ = _remap((raw[index] >= level).astype(np.float32), u, v)
             bands.append(values)
             valid.append(inside & seen)
             saturated.append(touched > 0)
+            sampled.append((u, v))
         results.append(result)
         if on_band is not None:
             on_band(result)
     bands = [np.where(ok, values, np.float32(np.nan)).astype(np.float32) for values, ok in zip(bands, valid)]
     return CaptureRegistration(capture, tuple(raw), tuple(bands), tuple(valid), tuple(saturated), tuple(results),
-                               time.perf_counter() - start)
+                               tuple(sampled), time.perf_counter() - start)
