@@ -110,7 +110,7 @@ def surface_points(terrain: Terrain, camera: BandCamera, u: np.ndarray, v: np.nd
     rays = np.concatenate([normalised[:, 0, :], np.ones((len(pts), 1))], axis=1) @ camera.R  # R^T d, as rows
     centre = -camera.R.T @ np.asarray(camera.translation)
     s = (terrain.depth - centre[2]) / rays[:, 2]
-    for _ in range(30):
+    for _ in range(12):
         points = centre + s[:, None] * rays
         s = (terrain.z(points[:, 0], points[:, 1]) - centre[2]) / rays[:, 2]
     return centre + s[:, None] * rays
@@ -158,7 +158,7 @@ class SyntheticCapture:
     """Per band: (u, v) (H, W) where each reference raw pixel's ground point is in that band."""
 
 
-def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, int] = (400, 300), depth: float = 1.5,
+def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, int] = (320, 240), depth: float = 1.5,
                   hill: float = 0.3, drop: tuple[str, str] | None = None, saturate: bool = False) -> SyntheticCapture:
     """Render and write ``IMG_0001_{1..5}.tif`` in ``folder``; ``drop`` = (band, tag) leaves a tag out."""
     folder.mkdir(parents=True, exist_ok=True)
