@@ -81,7 +81,7 @@ def test_a_synthetic_capture_is_registered_within_half_a_pixel(tmp_path, rng):
     scene = write_capture(tmp_path / "shot", rng)
     capture = load_capture(scene.paths[::-1])  # any order
     assert capture.names() == ["Blue", "Green", "Red", "NIR", "Red edge"] and capture.reference_band.name == "Green"
-    registration = register_capture(capture, scale=1.0)
+    registration = register_capture(capture, scale=1.0, keep_sampled=True)
     paths = {result.name: result.path for result in registration.results}
     assert paths == {"Blue": "parallax", "Green": "reference", "Red": "parallax", "NIR": "parallax",
                      "Red edge": "parallax"}
@@ -92,7 +92,7 @@ def test_a_synthetic_capture_is_registered_within_half_a_pixel(tmp_path, rng):
     for name, (errors, kept) in border_error(capture, registration, scene.truth).items():
         assert kept > 0.95, name
         assert np.mean(errors <= 0.5) > 0.98 and np.median(errors) < 0.25, name
-    plane = register_capture(capture, plane_only=True)
+    plane = register_capture(capture, plane_only=True, keep_sampled=True)
     assert {r.path for r in plane.results} == {"reference", "plane-only"}
     worse = border_error(capture, plane, scene.truth)
     assert all(np.mean(errors <= 0.5) < 0.9 for name, (errors, _) in worse.items() if name != "Green")
@@ -101,7 +101,7 @@ def test_a_synthetic_capture_is_registered_within_half_a_pixel(tmp_path, rng):
 def test_a_far_capture_takes_the_cheap_path(tmp_path, rng):
     scene = write_capture(tmp_path / "far", rng, depth=300.0, hill=1.0)
     capture = load_capture(scene.paths)
-    registration = register_capture(capture)
+    registration = register_capture(capture, keep_sampled=True)
     assert [r.path for r in registration.results] == ["plane", "reference", "plane", "plane", "plane"]
     for name, (errors, kept) in border_error(capture, registration, scene.truth).items():
         assert kept > 0.99 and np.percentile(errors, 99) < 0.2, name

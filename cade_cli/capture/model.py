@@ -109,6 +109,10 @@ def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, r
     return Capture(tuple(bands), matches[0])
 
 
+CHUNK_PIXELS = 1 << 20
+"""Pixels mapped at a time by :func:`band_pixels` (bounds its float64 temporaries for 12 MP bands)."""
+
+
 def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
                 homography: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Where common-frame pixels (x, y) fall in band ``index``'s raw image.
@@ -120,18 +124,24 @@ def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
     Returns:
         (u, v) float32 arrays of the shape of ``x``; NaN behind the camera.
     """
-    x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
-    points = np.stack([x.ravel(), y.ravel(), np.ones(x.size)])
-    if homography is not None:
-        points = homography @ points
     band = capture.bands[index]
     rotation = band.rotation @ capture.reference_band.rotation.T  # reference camera -> this band's
-    rays = rotation @ (np.linalg.inv(capture.K) @ points)
-    behind = rays[2] <= 1e-9
-    z = np.where(behind, 1.0, rays[2])
-    u, v = band.lens.pixels(rays[0] / z, rays[1] / z)
-    u[behind] = v[behind] = np.nan
-    return u.reshape(x.shape).astype(np.float32), v.reshape(x.shape).astype(np.float32)
+    to_rays = rotation @ np.linalg.inv(capture.K)
+    if homography is not None:
+        to_rays = to_rays @ homography
+    x, y = np.asarray(x, np.float32), np.asarray(y, np.float32)
+    u, v = np.empty(x.shape, np.float32), np.empty(x.shape, np.float32)
+    flat_x, flat_y, flat_u, flat_v = x.reshape(-1), y.reshape(-1), u.reshape(-1), v.reshape(-1)
+    for start in range(0, flat_x.size, CHUNK_PIXELS):
+        part = slice(start, start + CHUNK_PIXELS)
+        points = np.stack([flat_x[part], flat_y[part], np.ones(flat_x[part].size, np.float32)]).astype(np.float64)
+        rays = to_rays @ points
+        behind = rays[2] <= 1e-9
+        z = np.where(behind, 1.0, rays[2])
+        pu, pv = band.lens.pixels(rays[0] / z, rays[1] / z)
+        pu[behind] = pv[behind] = np.nan
+        flat_u[part], flat_v[part] = pu, pv
+    return u, v
 
 
 def reference_frame_pixels(capture: Capture, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,13 +27,17 @@ from cade_cli.rigs.array import fuse_votes, match_camera
 from cade_cli.rigs.array_geometry import ArrayCamera
 from cade_cli.stereo import DEFAULT_METHOD
 
+MAX_MATCH_PIXELS = 1_500_000
+"""The dense matching runs on at most this many pixels per band (a 12 MP band at 0.35 instead of
+0.5): memory and time stay those of a 1.2 MP capture's order."""
 DEFAULT_MATCH_SCALE = 0.5
 """Dense matching at half resolution by default: a 1.2 MP capture's four pairs in seconds on two
 cores (docs/drone.md); the disparity is brought back to full size."""
-RANGE_MARGIN_SHARE = 0.25
-RANGE_MARGIN_PX = 4
-"""The disparity range searched: the matches' robust extremes widened by this share of their
-span, and by at least this many px, each way (the matches may miss the nearest surfaces)."""
+RANGE_MARGIN_SHARE = (0.25, 1.0)
+RANGE_MARGIN_PX = (4, 8)
+"""The disparity range searched: the matches' robust extremes widened by these shares of their
+span, and by at least these many px, below and above: more above, as the sparse matches miss
+small near surfaces more often than far ones (nothing lies beyond infinity, d = 0)."""
 
 
 @dataclass(frozen=True)
@@ -75,7 +79,8 @@ class CaptureRegistration:
             maximum (:func:`saturation_level`).
         results: one :class:`BandResult` per band.
         sampled: one ((H, W) float32 u, v) per band: where each output pixel was sampled in the
-            band's raw image (the reference's own grid for the reference).
+            band's raw image (the reference's own grid for the reference); None per band
+            unless asked for (``keep_sampled``).
         seconds: wall time of the registration.
     """
 
@@ -85,7 +90,7 @@ class CaptureRegistration:
     valid: tuple[np.ndarray, ...]
     saturated: tuple[np.ndarray, ...]
     results: tuple[BandResult, ...]
-    sampled: tuple[tuple[np.ndarray, np.ndarray], ...]
+    sampled: tuple[tuple[np.ndarray, np.ndarray] | None, ...]
     seconds: float
 
 
@@ -126,8 +131,9 @@ def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray,
 
 
 def _search(parallax: Parallax) -> tuple[int, int]:
-    margin = max(RANGE_MARGIN_PX, RANGE_MARGIN_SHARE * (parallax.high - parallax.low))
-    return math.floor(parallax.low - margin), math.ceil(parallax.high + margin)
+    span = parallax.high - parallax.low
+    below, above = (max(px, share * span) for px, share in zip(RANGE_MARGIN_PX, RANGE_MARGIN_SHARE))
+    return math.floor(parallax.low - below), math.ceil(parallax.high + above)
 
 
 def _dense_disparity(reference: np.ndarray, warped: np.ndarray, inside: np.ndarray, name: str,
@@ -170,8 +176,15 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     return BandResult(name, "parallax", homography, parallax, search, len(points_reference)), disparity, trusted
 
 
+def matching_scale(capture: Capture, scale: float) -> float:
+    """``scale``, lowered so the matched band has at most :data:`MAX_MATCH_PIXELS`."""
+    width, height = capture.size
+    return min(scale, math.sqrt(MAX_MATCH_PIXELS / (width * height)))
+
+
 def register_capture(capture: Capture, *, plane_only: bool = False, method: str = DEFAULT_METHOD,
-                     scale: float = DEFAULT_MATCH_SCALE, model: str | None = None, on_band: Callable[[BandResult], None] | None = None) -> CaptureRegistration:
+                     scale: float = DEFAULT_MATCH_SCALE, model: str | None = None, keep_sampled: bool = False,
+                     on_band: Callable[[BandResult], None] | None = None) -> CaptureRegistration:
     """Register every band of ``capture`` onto its reference band.
 
     Args:
@@ -180,8 +193,10 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             no parallax: the anchors' model, for comparison.
         method: the dense matcher (:data:`cade_cli.matching.MATCHERS`).
         scale: resolution of the dense matching, 0 < scale <= 1 (the disparity is brought back
-            to full size).
+            to full size); lowered for bands over :data:`MAX_MATCH_PIXELS` (:func:`matching_scale`).
         model: another network for the learned methods (:func:`~cade_cli.stereo.estimate_disparity`).
+        keep_sampled: keep where each output pixel was sampled in each band
+            (:attr:`CaptureRegistration.sampled`; two float32 maps per band).
         on_band: called with each band's :class:`BandResult` once it is done (progress).
 
     Returns:
@@ -192,6 +207,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     start = time.perf_counter()
     raw = read_raw(capture)
     width, height = capture.size
+    scale = matching_scale(capture, scale)
     x, y = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     ref_index = capture.reference
     signal = [np.asarray(image, np.float32) - np.float32(band.black_level) for image, band in zip(raw, capture.bands)]
@@ -206,7 +222,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             bands.append(raw[index].astype(np.float32))
             valid.append(np.ones(raw[index].shape, bool))
             saturated.append(raw[index] >= level)
-            sampled.append((x, y))
+            sampled.append((x, y) if keep_sampled else None)
         else:
             result, disparity, trusted = _band_geometry(capture, index, signal[index], reference, reference_features,
                                                         (x, y), plane_only=plane_only, method=method, scale=scale,
@@ -227,7 +243,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             bands.append(values)
             valid.append(inside & seen)
             saturated.append(touched > 0)
-            sampled.append((u, v))
+            sampled.append((u, v) if keep_sampled else None)
         results.append(result)
         if on_band is not None:
             on_band(result)

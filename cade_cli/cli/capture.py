@@ -67,7 +67,7 @@ def register_capture(
     from cade_cli.capture.cube import (DTYPES, false_colour_picture, mask_path, ndvi_picture, write_cube,
                                        write_per_band)
     from cade_cli.capture.model import load_capture
-    from cade_cli.capture.register import register_capture as register
+    from cade_cli.capture.register import matching_scale, register_capture as register
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_outputs
     from cade_cli.matching import get_matcher
@@ -83,6 +83,10 @@ def register_capture(
         get_matcher(method)  # refuse an unknown name before reading anything
     mask = mask_path(output) if dtype == "uint16" else None
     capture = load_capture(files, reference=reference, rig=None if rig_file is None else load_rig(rig_file))
+    scale = matching_scale(capture, match_scale)
+    if scale < match_scale and not plane_only:
+        print_note(f"matching at scale {scale:.2f} instead of {match_scale:g}: the bands are "
+                   f"{capture.size[0]}x{capture.size[1]} (dense matching keeps to 1.5 MP per band)")
     with StepBar(len(capture.bands), "registering bands") as bar:
         registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model,
                                 on_band=lambda result: bar.advance(f"{result.name} done"))
@@ -102,5 +106,5 @@ def register_capture(
     seen = ", ".join(f"{band.name} {100 * valid.mean():.0f}%" for band, valid in zip(capture.bands, registration.valid))
     bands = "; ".join(_describe(result) for result in registration.results)
     print(f"{output}: {width}x{height}, {len(capture.bands)} bands onto {capture.reference_band.name} "
-          f"({'plane only' if plane_only else f'{method} at scale {match_scale:g}'}); {bands}; seen: {seen}; "
+          f"({'plane only' if plane_only else f'{method} at scale {scale:.2g}'}); {bands}; seen: {seen}; "
           f"{registration.seconds:.1f} s per capture", file=sys.stderr)
