@@ -85,7 +85,7 @@ class FisheyeLens:
         theta = (2 / np.pi) * np.arctan(r)
         p0, p1, p2, p3 = self.polynomial
         rho = p0 + theta * (p1 + theta * (p2 + theta * p3))
-        scale = np.where(r > 1e-12, rho / np.maximum(r, 1e-12), p1 * 2 / np.pi)  # rho / r -> p1 (2/pi) at r = 0
+        scale = np.where(r > 1e-9, rho / np.maximum(r, 1e-9), p1 * 2 / np.pi)  # rho / r -> p1 (2/pi) at r = 0
         a, b = x * scale, y * scale
         c, d, e, f = self.affine
         return c * a + d * b + self.centre[0], e * a + f * b + self.centre[1]

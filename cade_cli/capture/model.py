@@ -110,7 +110,7 @@ def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, r
 
 
 CHUNK_PIXELS = 1 << 20
-"""Pixels mapped at a time by :func:`band_pixels` (bounds its float64 temporaries for 12 MP bands)."""
+"""Pixels mapped at a time (bounds the temporaries for 12 MP bands)."""
 
 
 def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
@@ -119,7 +119,8 @@ def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
 
     The pixel becomes a ray of the reference camera (``K^-1``), optionally after the residual
     ``homography`` (common-frame px -> px of the band rotated into the reference, 3x3), is
-    turned into the band's camera by its lens rotation and projected through its lens.
+    turned into the band's camera by its lens rotation and projected through its lens. In
+    float32 (rays of unit depth: about 1e-4 px), :data:`CHUNK_PIXELS` at a time.
 
     Returns:
         (u, v) float32 arrays of the shape of ``x``; NaN behind the camera.
@@ -129,16 +130,19 @@ def band_pixels(capture: Capture, index: int, x: np.ndarray, y: np.ndarray,
     to_rays = rotation @ np.linalg.inv(capture.K)
     if homography is not None:
         to_rays = to_rays @ homography
+    to_rays = to_rays.astype(np.float32)
     x, y = np.asarray(x, np.float32), np.asarray(y, np.float32)
     u, v = np.empty(x.shape, np.float32), np.empty(x.shape, np.float32)
     flat_x, flat_y, flat_u, flat_v = x.reshape(-1), y.reshape(-1), u.reshape(-1), v.reshape(-1)
     for start in range(0, flat_x.size, CHUNK_PIXELS):
         part = slice(start, start + CHUNK_PIXELS)
-        points = np.stack([flat_x[part], flat_y[part], np.ones(flat_x[part].size, np.float32)]).astype(np.float64)
-        rays = to_rays @ points
-        behind = rays[2] <= 1e-9
-        z = np.where(behind, 1.0, rays[2])
-        pu, pv = band.lens.pixels(rays[0] / z, rays[1] / z)
+        px, py = flat_x[part], flat_y[part]
+        rx = to_rays[0, 0] * px + to_rays[0, 1] * py + to_rays[0, 2]
+        ry = to_rays[1, 0] * px + to_rays[1, 1] * py + to_rays[1, 2]
+        rz = to_rays[2, 0] * px + to_rays[2, 1] * py + to_rays[2, 2]
+        behind = rz <= 1e-6
+        rz[behind] = 1
+        pu, pv = band.lens.pixels(rx / rz, ry / rz)
         pu[behind] = pv[behind] = np.nan
         flat_u[part], flat_v[part] = pu, pv
     return u, v

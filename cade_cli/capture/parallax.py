@@ -187,14 +187,18 @@ class Parallax:
 
 def _fit_across(points: np.ndarray, across: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """Least-squares (a, b, c) of ``across ≈ a + b x + c y`` for every column of ``across``
-    (N, A) over the rows ``keep`` (N, A) marks: (3, A)."""
+    (N, A) over the rows ``keep`` (N, A) marks, all columns at once (normal equations):
+    (3, A); zeros for a column with fewer than three rows."""
     design = np.stack([np.ones(len(points)), points[:, 0], points[:, 1]], axis=1)
-    fits = np.zeros((3, across.shape[1]))
-    for column in range(across.shape[1]):
-        rows = keep[:, column]
-        if rows.sum() >= 3:
-            fits[:, column] = np.linalg.lstsq(design[rows], across[rows, column], rcond=None)[0]
-    return fits
+    weights = keep.astype(np.float64)
+    normal = np.einsum("na,nj,nk->ajk", weights, design, design)  # (A, 3, 3)
+    right = np.einsum("na,nj->aj", weights * across, design)  # (A, 3)
+    enough = keep.sum(axis=0) >= 3
+    normal[~enough] = np.eye(3)
+    right[~enough] = 0
+    scale = np.array([1.0, 1e-3, 1e-3])  # columns in px are ~1e3 times the constant: condition the solve
+    solved = np.linalg.solve(normal * scale[None, :, None] * scale[None, None, :], (right * scale)[..., None])[..., 0]
+    return (solved * scale).T
 
 
 SUPPORT_SHARE = 0.9
