@@ -166,3 +166,20 @@ def test_bad_captures_are_refused(tmp_path, rng, capsys):
     shutil.copy(scene.paths[0], copy)
     code, _, err = run_cade(["register-capture", copy, "-o", tmp_path / "x.png"], capsys)
     assert code != 0 and len(err.strip().splitlines()) == 1
+
+
+def test_a_rig_file_supplies_what_the_files_lack(tmp_path, rng, capsys):
+    scene = write_capture(tmp_path / "shot", rng, drop=("Red", "Camera:PerspectiveDistortion"))
+    cameras = [{"name": c.name.replace(" ", "-"), "band": c.name, "image_size": [320, 240], "K": c.K.tolist(),
+                "dist": c.opencv_dist.tolist(), "R": c.R.tolist(), "t": list(c.translation)} for c in scene.cameras]
+    rig = tmp_path / "rig.json"
+    rig.write_text(json.dumps({"format": "cade-rig", "version": 1, "reference": "Green", "cameras": cameras}))
+    from cade_cli.rigs.rig_file import load_rig
+
+    capture = load_capture(scene.paths, rig=load_rig(rig))
+    red = capture.bands[2]
+    assert red.lens.k1 == scene.cameras[2].dist[0] and np.allclose(red.rotation, scene.cameras[2].R)
+    code, _, err = run_cade(["register-capture", *scene.paths, "-o", tmp_path / "cube.tif", "--rig", rig,
+                             "--plane-only"], capsys)
+    assert code == 0, err
+    assert tifffile.imread(tmp_path / "cube.tif").shape == (5, 240, 320)

@@ -22,7 +22,6 @@ DTYPES = ("float32", "uint16")
 INTERPOLATION = "bilinear"
 """How a band's values are resampled (no overshoot: a registered value lies between the raw
 values around it)."""
-CAMERA_TAGS = {271: "Make", 272: "Model", 305: "Software", 306: "DateTime"}
 
 
 def mask_path(path: Path) -> Path:
@@ -73,13 +72,16 @@ def xmp_packet(path: Path) -> bytes:
     return (packet[:end] + description + packet[end:]).encode("utf-8")
 
 
-def _extratags(path: Path, page_name: str) -> list[tuple]:
+def _source_metadata(path: Path, page_name: str) -> dict:
+    """``tifffile`` write arguments carrying a band file's metadata onto a page named
+    ``page_name``: its XMP (:func:`xmp_packet`), Make, Model and DateTime."""
     tags, _, _ = _source_tags(path)
     extra = [(285, "s", 0, page_name, True), (700, "B", 0, xmp_packet(path), True)]
     for code in (271, 272):
         if tags.get(code):
             extra.append((code, "s", 0, str(tags[code]), True))
-    return extra
+    return {"extratags": extra, "datetime": str(tags[306]) if tags.get(306) else None,
+            "software": "cade register-capture", "photometric": "minisblack", "metadata": None}
 
 
 def cube_description(registration: CaptureRegistration, *, dtype: str) -> dict:
@@ -126,9 +128,8 @@ def write_cube(path: Path, registration: CaptureRegistration, *, dtype: str = "f
     description = json.dumps(cube_description(registration, dtype=dtype))
     with tifffile.TiffWriter(path) as writer:
         for index, (band, page) in enumerate(zip(capture.bands, band_pages(registration, dtype=dtype))):
-            writer.write(page, photometric="minisblack", metadata=None,
-                         description=description if index == 0 else None,
-                         extratags=_extratags(reference, band.name), software="cade register-capture")
+            writer.write(page, description=description if index == 0 else None,
+                         **_source_metadata(reference, band.name))
     if mask is not None:
         with tifffile.TiffWriter(mask) as writer:
             for band, valid in zip(capture.bands, registration.valid):
@@ -142,8 +143,7 @@ def write_per_band(folder: Path, registration: CaptureRegistration, *, dtype: st
     written = []
     for band, page in zip(registration.capture.bands, band_pages(registration, dtype=dtype)):
         target = folder / band.path.name
-        tifffile.imwrite(target, page, photometric="minisblack", metadata=None,
-                         extratags=_extratags(band.path, band.name), software="cade register-capture")
+        tifffile.imwrite(target, page, **_source_metadata(band.path, band.name))
         written.append(target)
     return written
 

@@ -210,8 +210,13 @@ def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
     fwhm = numbers(xmp["Camera:WavelengthFWHM"])[0] if "Camera:WavelengthFWHM" in xmp else None
     rig_index = int(fields.numbers("Camera:RigCameraIndex", 1, f"give the bands' order with {RIG_OPTION}")[0])
     capture_id = xmp.get("MicaSense:CaptureId") or xmp.get("Camera:CaptureUUID")
-    lens = _lens(fields) if need_geometry or "Camera:ModelType" in xmp else None
-    rotation = _rotation(fields, rig_index)
+    if need_geometry:
+        lens, rotation = _lens(fields), _rotation(fields, rig_index)
+    else:  # --rig supplies them: what the file has is not needed
+        try:
+            lens, rotation = _lens(fields), _rotation(fields, rig_index)
+        except CadeError:
+            lens = rotation = None
     if rotation is None and need_geometry:
         raise fields.missing("Camera:RigRelatives", f"give the lens rotations with {RIG_OPTION}")
     black = tags.get(50714)
