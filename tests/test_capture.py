@@ -183,3 +183,13 @@ def test_a_rig_file_supplies_what_the_files_lack(tmp_path, rng, capsys):
                              "--plane-only"], capsys)
     assert code == 0, err
     assert tifffile.imread(tmp_path / "cube.tif").shape == (5, 240, 320)
+
+
+def test_only_small_unmatched_areas_count_as_seen():
+    from cade_cli.capture.register import small_holes
+
+    trusted = np.ones((100, 100), bool)
+    trusted[10:13, 10:13] = False  # 9 px: 0.09 % of the image
+    trusted[50:90, 20:80] = False  # 2400 px: 24 %
+    holes = small_holes(trusted, share=0.002)
+    assert holes[10:13, 10:13].all() and not holes[50:90, 20:80].any() and not holes[trusted].any()

@@ -136,11 +136,26 @@ def _search(parallax: Parallax) -> tuple[int, int]:
     return math.floor(parallax.low - below), math.ceil(parallax.high + above)
 
 
+SMALL_HOLE_SHARE = 0.002
+"""Unmatched areas smaller than this share of the image each (the matcher's checks reject
+patches of weak texture even on a flat field) that no nearer surface hides take the filled
+disparity (from the background side) and count as seen; larger ones stay unseen."""
+
+
+def small_holes(trusted: np.ndarray, *, share: float = SMALL_HOLE_SHARE) -> np.ndarray:
+    """(H, W) bool: the connected areas of ``~trusted`` smaller than ``share`` of the image."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats((~trusted).astype(np.uint8), connectivity=8)
+    small = stats[:, cv2.CC_STAT_AREA] < share * trusted.size
+    small[0] = False  # label 0: the trusted pixels
+    return small[labels]
+
+
 def _dense_disparity(reference: np.ndarray, warped: np.ndarray, inside: np.ndarray, name: str,
                      parallax: Parallax, search: tuple[int, int], *, method: str, scale: float,
                      model: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """The reference view's disparity along the band's baseline (px, dense) and where it is
-    trusted (the matcher's checks, not hidden from the band)."""
+    """The reference view's disparity along the band's baseline (px, dense) and where the band
+    saw the pixel: the matcher's checks passed and no nearer surface hides it from the band,
+    or a small unmatched area (:func:`small_holes`) that no nearer surface hides."""
     camera = ArrayCamera(name, name, (reference.shape[1], reference.shape[0]), parallax.baseline)
     vote = match_camera(reference, warped, inside, camera, unit=1.0, search=search, method=method, scale=scale,
                         model=model)
@@ -148,7 +163,9 @@ def _dense_disparity(reference: np.ndarray, warped: np.ndarray, inside: np.ndarr
     trusted = count > 0
     if not trusted.any():
         return np.zeros(reference.shape, np.float32), trusted
-    return densify(fused, trusted), trusted
+    dense = densify(fused, trusted)
+    _, visible = fuse_votes([dense], [camera], unit=1.0, tolerance=1.0 / scale)
+    return dense, trusted | (small_holes(trusted) & (visible > 0))
 
 
 def _band_geometry(capture, index, raw_band, reference, reference_features, grid, *, plane_only, method,
