@@ -166,6 +166,10 @@ def test_bad_captures_are_refused(tmp_path, rng, capsys):
     shutil.copy(scene.paths[0], copy)
     code, _, err = run_cade(["register-capture", copy, "-o", tmp_path / "x.png"], capsys)
     assert code != 0 and len(err.strip().splitlines()) == 1
+    before = scene.paths[0].read_bytes()
+    code, _, err = run_cade(["register-capture", *scene.paths, "-o", tmp_path / "x.tif", "--per-band",
+                             scene.paths[0].parent, "--plane-only"], capsys)
+    assert code != 0 and "--per-band" in err and scene.paths[0].read_bytes() == before
 
 
 def test_a_rig_file_supplies_what_the_files_lack(tmp_path, rng, capsys):

@@ -48,7 +48,8 @@ def register_capture(
                                                      show_default=False)] = None,
     dtype: Annotated[str, typer.Option("--dtype", help="float32, or uint16: the input's values rounded (0 where not "
                                        "seen, the sensor's maximum where saturated) with the validity in "
-                                       "OUTPUT.valid.tif beside it (one uint8 page per band, 255 = seen).")
+                                       "a mask beside it (-o IMG_0001.tif: IMG_0001.valid.tif, one uint8 page per "
+                                       "band, 255 = seen).")
                      ] = "float32",
     per_band: Annotated[Optional[Path], typer.Option("--per-band", help="Also write one aligned single-band TIFF per "
                                                      "band into this folder, named and tagged as its source file.",
@@ -79,6 +80,9 @@ def register_capture(
     for picture in (vis, ndvi):
         if picture is not None:
             check_output(picture, suffixes=(".png",), inputs=tuple(files))
+    if per_band is not None and any(path.resolve().parent == per_band.resolve() for path in files):
+        raise CadeError(f"--per-band {per_band} holds the band files themselves, which it would overwrite; "
+                        "give another folder")
     if not plane_only:
         get_matcher(method)  # refuse an unknown name before reading anything
     mask = mask_path(output) if dtype == "uint16" else None
