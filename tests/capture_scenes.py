@@ -159,8 +159,9 @@ class SyntheticCapture:
 
 
 def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, int] = (320, 240), depth: float = 1.5,
-                  hill: float = 0.3, drop: tuple[str, str] | None = None, saturate: bool = False) -> SyntheticCapture:
-    """Render and write ``IMG_0001_{1..5}.tif`` in ``folder``; ``drop`` = (band, tag) leaves a tag out."""
+                  hill: float = 0.3, drop: tuple[str, str] | None = None, saturate: bool = False,
+                  name: str = "IMG_0001", capture_id: str = "SYNTHETIC01") -> SyntheticCapture:
+    """Render and write ``<name>_{1..5}.tif`` in ``folder``; ``drop`` = (band, tag) leaves a tag out."""
     folder.mkdir(parents=True, exist_ok=True)
     width, height = size
     terrain = make_terrain(rng, depth=depth, hill=hill)
@@ -179,8 +180,8 @@ def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, in
             raw[:20, :20] = 65520
         raw = raw.astype(np.uint16)
         truth[camera.name] = tuple(project(camera, ground).T.reshape(2, height, width))
-        path = folder / f"IMG_0001_{number}.tif"
-        tags = [(700, "B", 0, xmp(camera, capture_id="SYNTHETIC01", drop=drop[1] if drop and drop[0] == camera.name
+        path = folder / f"{name}_{number}.tif"
+        tags = [(700, "B", 0, xmp(camera, capture_id=capture_id, drop=drop[1] if drop and drop[0] == camera.name
                                    else None), True),
                 (271, "s", 0, "MicaSense", True), (272, "s", 0, "RedEdge-M", True),
                 (37390, "2I", 1, (266666667, 1000000), True), (37392, "H", 1, 4, True),

@@ -197,3 +197,19 @@ def test_only_small_unmatched_areas_count_as_seen():
     trusted[50:90, 20:80] = False  # 2400 px: 24 %
     holes = small_holes(trusted, share=0.002)
     assert holes[10:13, 10:13].all() and not holes[50:90, 20:80].any() and not holes[trusted].any()
+
+
+def test_a_flight_folder_is_grouped_by_capture_id_and_resumes(tmp_path, rng, capsys):
+    flight = tmp_path / "flight"
+    write_capture(flight / "000", rng, size=(96, 72), name="IMG_0001", capture_id="FIRST")
+    write_capture(flight / "000", rng, size=(96, 72), name="IMG_0002", capture_id="SECOND")
+    tifffile.imwrite(flight / "000" / "notes.tif", np.zeros((4, 4), np.uint8))  # not a band file
+    (flight / "000" / "IMG_0002_3.tif").rename(flight / "000" / "renamed.tif")  # grouped by id, not by name
+    out = tmp_path / "cubes"
+    code, _, err = run_cade(["register-flight", flight, "-o", out, "--plane-only"], capsys)
+    assert code == 0, err
+    assert "notes.tif skipped" in err and "2 captures: 2 written, 0 already there, 0 failed" in err
+    assert sorted(p.name for p in (out / "000").iterdir()) == ["IMG_0001.tif", "SECOND.tif"]  # no common name
+    assert all(tifffile.imread(p).shape == (5, 72, 96) for p in (out / "000").iterdir())
+    code, _, err = run_cade(["register-flight", flight, "-o", out, "--plane-only"], capsys)
+    assert code == 0 and "0 written, 2 already there" in err
