@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,8 @@ from cade_cli.capture.lens import BrownLens
 from cade_cli.capture.metadata import RIG_OPTION, BandFile, read_band_file
 from cade_cli.errors import CadeError
 
+MAX_FRAME_GROWTH = 1.5
+"""The common frame is at most this many times the raw image's width and height."""
 DEFAULT_REFERENCE = "Green"
 """The vendors' reference band (MicaSense and Parrot align onto Green)."""
 
@@ -40,12 +43,32 @@ class Capture:
         """(width, height) of every band, px."""
         return self.reference_band.size
 
+    @cached_property
+    def frame(self) -> tuple[np.ndarray, tuple[int, int]]:
+        """The common pinhole frame the bands are matched in: ((3, 3) intrinsics, (width, height)).
+
+        The reference lens's focal length; the principal point and size such that the whole
+        reference image, undistorted, fits (a fisheye's corners reach beyond the raw image's
+        size), each side at most :data:`MAX_FRAME_GROWTH` times the raw image's.
+        """
+        lens = self.reference_band.lens
+        width, height = self.size
+        u = np.concatenate([np.arange(width), np.arange(width), np.zeros(height), np.full(height, width - 1)])
+        v = np.concatenate([np.zeros(width), np.full(width, height - 1), np.arange(height), np.arange(height)])
+        x, y = lens.rays(u.astype(np.float64), v.astype(np.float64))
+        low = np.array([lens.focal * x.min(), lens.focal * y.min()])
+        high = np.array([lens.focal * x.max(), lens.focal * y.max()])
+        reach = MAX_FRAME_GROWTH * np.array([width, height]) / 2
+        centre = np.array(lens.centre)
+        low = np.maximum(np.floor(centre + low), centre - reach)
+        high = np.minimum(np.ceil(centre + high), centre + reach)
+        K = np.array([[lens.focal, 0, centre[0] - low[0]], [0, lens.focal, centre[1] - low[1]], [0, 0, 1]])
+        return K, (int(high[0] - low[0]) + 1, int(high[1] - low[1]) + 1)
+
     @property
     def K(self) -> np.ndarray:
-        """(3, 3) intrinsics of the common pinhole frame: the reference lens's focal length and
-        principal point, the raw image's size."""
-        lens = self.reference_band.lens
-        return np.array([[lens.focal, 0, lens.centre[0]], [0, lens.focal, lens.centre[1]], [0, 0, 1]], np.float64)
+        """(3, 3) intrinsics of the common pinhole :attr:`frame`."""
+        return self.frame[0]
 
     def names(self) -> list[str]:
         return [band.name for band in self.bands]

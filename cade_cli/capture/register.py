@@ -195,7 +195,7 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
 
 def matching_scale(capture: Capture, scale: float) -> float:
     """``scale``, lowered so the matched band has at most :data:`MAX_MATCH_PIXELS`."""
-    width, height = capture.size
+    width, height = capture.frame[1]
     return min(scale, math.sqrt(MAX_MATCH_PIXELS / (width * height)))
 
 
@@ -223,14 +223,15 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
         raise CadeError(f"the matching scale must be in (0, 1], got {scale}")
     start = time.perf_counter()
     raw = read_raw(capture)
-    width, height = capture.size
+    width, height = capture.frame[1]
     scale = matching_scale(capture, scale)
     x, y = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     ref_index = capture.reference
     signal = [np.asarray(image, np.float32) - np.float32(band.black_level) for image, band in zip(raw, capture.bands)]
     reference, _ = _remap(signal[ref_index], *band_pixels(capture, ref_index, x, y))
     reference_features = band_features(reference)
-    px, py = reference_frame_pixels(capture, x, y)  # the output grid (reference raw px) in the common frame
+    raw_x, raw_y = np.meshgrid(*(np.arange(n, dtype=np.float32) for n in capture.size))
+    px, py = reference_frame_pixels(capture, raw_x, raw_y)  # the output grid (reference raw px) in the common frame
     bands, valid, saturated, results, sampled = [], [], [], [], []
     for index, band in enumerate(capture.bands):
         level = saturation_level(raw[index])
@@ -239,7 +240,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             bands.append(raw[index].astype(np.float32))
             valid.append(np.ones(raw[index].shape, bool))
             saturated.append(raw[index] >= level)
-            sampled.append((x, y) if keep_sampled else None)
+            sampled.append((raw_x, raw_y) if keep_sampled else None)
         else:
             result, disparity, trusted = _band_geometry(capture, index, signal[index], reference, reference_features,
                                                         (x, y), plane_only=plane_only, method=method, scale=scale,
