@@ -60,6 +60,8 @@ def test_every_real_band_file_is_read(shared_data):
         assert 4900 < band.black_level < 5800
     capture = load_capture(sorted((folder / "sequoia-tabletop").glob("*.TIF")))
     assert capture.reference_band.name == "Green" and capture.names() == ["Green", "Red", "Red edge", "NIR"]
+    _, (width, height) = capture.frame  # the fisheye's corners, undistorted, reach beyond the raw size
+    assert 1280 < width <= 1.5 * 1280 and 960 < height <= 1.5 * 960
 
 
 def test_lens_models_invert():
