@@ -12,7 +12,7 @@ import sys
 
 import typer
 
-from cade_cli.cli import batch, benchmark, pairs, rigs
+from cade_cli.cli import batch, benchmark, capture, pairs, rigs
 from cade_cli.cli.app import app
 from cade_cli.cli.options import DEFAULT_METHOD, METHOD_NAMES
 
@@ -27,6 +27,8 @@ app.command()(benchmark.benchmark)
 app.add_typer(benchmark.datasets_app, name="datasets")
 app.command("register-array")(rigs.register_array)
 app.command("array-score")(rigs.array_score)
+app.command("register-capture")(capture.register_capture)
+app.command("register-flight")(capture.register_flight)
 app.command()(batch.batch)
 
 

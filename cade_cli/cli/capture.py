@@ -1,0 +1,185 @@
+"""``cade register-capture``: a drone multispectral capture (one band file per lens) registered
+onto its reference band with parallax, as one cube TIFF (docs/drone.md).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cade_cli.cli.options import DEFAULT_METHOD, MethodOption, ModelOption, StepBar, check_output, print_note
+
+
+def _describe(result) -> str:
+    """One band's part of the summary line."""
+    if result.path in ("reference", "plane-only"):
+        return f"{result.name}: {result.path}"
+    parallax = result.parallax
+    direction = f"baseline ({parallax.baseline[0]:+.2f}, {parallax.baseline[1]:+.2f})"
+    if result.path == "plane":
+        return f"{result.name}: plane (the matches within +/-{parallax.spread:.2f} px of it)"
+    return (f"{result.name}: {direction}, parallax {parallax.low:+.1f}..{parallax.high:+.1f} px, searched "
+            f"[{result.search[0]}, {result.search[1]}]")
+
+
+def register_capture(
+    files: Annotated[list[Path], typer.Argument(metavar="BAND_FILE...", help="The band files of one capture, any "
+                                                "order (e.g. IMG_0001_*.tif): the camera's own TIFFs, whose XMP "
+                                                "says which band each is and how its lens sits.", exists=True,
+                                                dir_okay=False, show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Cube: multi-page TIFF, one page per band in the "
+                                         "capture's band order, on the reference band's raw pixel grid; float32 raw "
+                                         "values (bilinear interpolation), NaN where a band did not see the pixel, "
+                                         "+inf where saturated; band names and wavelengths in the tags, the "
+                                         "reference file's XMP carried over.", show_default=False)],
+    reference: Annotated[Optional[str], typer.Option("--reference", help="Reference band's name (default: Green, "
+                                                     "as the vendors).", show_default=False)] = None,
+    method: MethodOption = DEFAULT_METHOD,
+    model: ModelOption = None,
+    plane_only: Annotated[bool, typer.Option("--plane-only", help="One homography per band, fitted to sparse "
+                                             "cross-spectral matches, no parallax (the vendors' model, for "
+                                             "comparison).")] = False,
+    rig_file: Annotated[Optional[Path], typer.Option("--rig", help="A calibrated rig file (docs/rigs.md) whose "
+                                                     "cameras, named by band, give the lenses and rotations the "
+                                                     "files lack.", exists=True, dir_okay=False,
+                                                     show_default=False)] = None,
+    dtype: Annotated[str, typer.Option("--dtype", help="float32, or uint16: the input's values rounded (0 where not "
+                                       "seen, the sensor's maximum where saturated) with the validity in "
+                                       "a mask beside it (-o IMG_0001.tif: IMG_0001.valid.tif, one uint8 page per "
+                                       "band, 255 = seen).")
+                     ] = "float32",
+    per_band: Annotated[Optional[Path], typer.Option("--per-band", help="Also write one aligned single-band TIFF per "
+                                                     "band into this folder, named and tagged as its source file.",
+                                                     file_okay=False, show_default=False)] = None,
+    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a false-colour PNG: NIR, Red, Green as red, "
+                                                "green, blue.", show_default=False)] = None,
+    ndvi: Annotated[Optional[Path], typer.Option("--ndvi", help="Also write an NDVI PNG (raw signals above black "
+                                                 "level) with its colour bar.", show_default=False)] = None,
+    match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Dense matching at this "
+                                               "fraction of the resolution (the disparity is brought back to full "
+                                               "size).")] = 0.5,
+) -> None:
+    """Register the bands of one drone multispectral capture onto its reference band, parallax included."""
+    from cade_cli.capture.cube import DTYPES, mask_path
+    from cade_cli.capture.model import load_capture
+    from cade_cli.capture.register import matching_scale, register_capture as register
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import get_matcher
+    from cade_cli.rigs.rig_file import load_rig
+
+    if dtype not in DTYPES:
+        raise CadeError(f"unknown --dtype {dtype!r}; choose one of {', '.join(DTYPES)}")
+    check_output(output, suffixes=(".tif", ".tiff"), inputs=tuple(files))
+    for picture in (vis, ndvi):
+        if picture is not None:
+            check_output(picture, suffixes=(".png",), inputs=tuple(files))
+    if per_band is not None and any(path.resolve().parent == per_band.resolve() for path in files):
+        raise CadeError(f"--per-band {per_band} holds the band files themselves, which it would overwrite; "
+                        "give another folder")
+    if not plane_only:
+        get_matcher(method)  # refuse an unknown name before reading anything
+    mask = mask_path(output) if dtype == "uint16" else None
+    capture = load_capture(files, reference=reference, rig=None if rig_file is None else load_rig(rig_file))
+    scale = matching_scale(capture, match_scale)
+    if scale < match_scale and not plane_only:
+        print_note(f"matching at scale {scale:.2f} instead of {match_scale:g}: the bands are "
+                   f"{capture.size[0]}x{capture.size[1]} (dense matching keeps to 1.5 MP per band)")
+    with StepBar(len(capture.bands), "registering bands") as bar:
+        registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model,
+                                on_band=lambda result: bar.advance(f"{result.name} done"))
+    for result in registration.results:
+        if result.path == "plane":
+            print_note(f"{result.name}: parallax below 0.3 px everywhere (a high flight): registered by its plane "
+                       "homography alone")
+    _write_outputs(registration, output, mask=mask, per_band=per_band, vis=vis, ndvi=ndvi, dtype=dtype)
+    width, height = capture.size
+    seen = ", ".join(f"{band.name} {100 * valid.mean():.0f}%" for band, valid in zip(capture.bands, registration.valid))
+    bands = "; ".join(_describe(result) for result in registration.results)
+    print(f"{output}: {width}x{height}, {len(capture.bands)} bands onto {capture.reference_band.name} "
+          f"({'plane only' if plane_only else f'{method} at scale {scale:.2g}'}); {bands}; seen: {seen}; "
+          f"{registration.seconds:.1f} s per capture", file=sys.stderr)
+
+
+def _write_outputs(registration, output: Path, *, mask: Path | None, per_band: Path | None, vis: Path | None,
+                   ndvi: Path | None, dtype: str) -> None:
+    """Every file of one registered capture, all at once or none (:mod:`cade_cli.io.atomic`)."""
+    import cv2
+
+    from cade_cli.capture.cube import false_colour_picture, ndvi_picture, write_cube, write_per_band
+    from cade_cli.io.atomic import atomic_outputs
+
+    with atomic_outputs([output, mask, vis, ndvi], folders=[per_band]) as staged:
+        write_cube(staged[output], registration, dtype=dtype, mask=None if mask is None else staged[mask])
+        if per_band is not None:
+            write_per_band(staged[per_band], registration, dtype=dtype)
+        if vis is not None:
+            cv2.imwrite(str(staged[vis]), false_colour_picture(registration))
+        if ndvi is not None:
+            cv2.imwrite(str(staged[ndvi]), ndvi_picture(registration))
+
+
+def register_flight(
+    folder: Annotated[Path, typer.Argument(metavar="FLIGHT_FOLDER", help="A folder of band files (subfolders "
+                                           "included), grouped into captures by the capture id in their "
+                                           "metadata.", exists=True, file_okay=False, show_default=False)],
+    output_dir: Annotated[Path, typer.Option("--output-dir", "-o", help="Folder for the cubes: <subfolder>/<capture "
+                                             "name>.tif (as register-capture -o); a cube already there is kept "
+                                             "(the run resumes).", file_okay=False, show_default=False)],
+    reference: Annotated[Optional[str], typer.Option("--reference", help="Reference band's name (default: Green).",
+                                                     show_default=False)] = None,
+    method: MethodOption = DEFAULT_METHOD,
+    model: ModelOption = None,
+    plane_only: Annotated[bool, typer.Option("--plane-only", help="One homography per band, no parallax.")] = False,
+    dtype: Annotated[str, typer.Option("--dtype", help="float32 or uint16 (with a .valid.tif mask beside each "
+                                       "cube), as register-capture.")] = "float32",
+    match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Dense matching at this "
+                                               "fraction of the resolution.")] = 0.5,
+) -> None:
+    """Register every capture of a drone flight folder, one cube per capture (resumable; sequential)."""
+    from cade_cli.capture.cube import DTYPES, mask_path, write_cube
+    from cade_cli.capture.flight import group_captures
+    from cade_cli.capture.model import load_capture
+    from cade_cli.capture.register import register_capture as register
+    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.matching import get_matcher
+
+    if dtype not in DTYPES:
+        raise CadeError(f"unknown --dtype {dtype!r}; choose one of {', '.join(DTYPES)}")
+    if not plane_only:
+        get_matcher(method)
+    captures, notes = group_captures(folder, skip=(output_dir,))
+    for note in notes:
+        print_note(note)
+    if not captures:
+        raise CadeError(f"no capture found in {folder}: no TIFF there carries a band name and a capture id in its XMP")
+    written, kept, failed, seconds = 0, 0, [], 0.0
+    with StepBar(len(captures), "registering captures") as bar:
+        for flight_capture in captures:
+            output = flight_capture.output(output_dir)
+            if output.exists():
+                kept += 1
+                bar.advance(f"{flight_capture.name} already there")
+                continue
+            try:
+                output.parent.mkdir(parents=True, exist_ok=True)
+                capture = load_capture(flight_capture.paths, reference=reference)
+                registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model)
+                mask = mask_path(output) if dtype == "uint16" else None
+                with atomic_outputs([output, mask]) as staged:
+                    write_cube(staged[output], registration, dtype=dtype, mask=None if mask is None else staged[mask])
+                written += 1
+                seconds += registration.seconds
+            except (CadeError, OSError) as error:
+                failed.append(f"{flight_capture.name}: {str(error).splitlines()[0]}")
+            bar.advance(f"{flight_capture.name} done")
+    for failure in failed:
+        print(f"warning: {failure}", file=sys.stderr)
+    mean = f"; {seconds / written:.1f} s per capture" if written else ""
+    print(f"{output_dir}: {len(captures)} captures: {written} written, {kept} already there, {len(failed)} failed"
+          f"{mean}", file=sys.stderr)
+    if failed:
+        raise CadeError(f"{len(failed)} of {len(captures)} captures failed (first: {failed[0]}); the others are written")
