@@ -23,7 +23,7 @@ LAYERS: dict[str, int] = {
     # 2: the library's entry points: one pair, rigs, scale (range, tiles)
     "cade_cli.stereo": 2, "cade_cli.registration": 2, "cade_cli.io.registered": 2, "cade_cli.pair_check": 2,
     "cade_cli.pair_features": 2,
-    "cade_cli.rigs": 2, "cade_cli.scale": 2,
+    "cade_cli.rigs": 2, "cade_cli.scale": 2, "cade_cli.capture": 2,
     # 3: data sets, then the evaluation built on them
     "cade_cli.data": 3,
     "cade_cli.evaluation": 4,

@@ -1,0 +1,91 @@
+"""The vendors' one-homography band alignment (cade_cli/capture/homography.py): a textured
+band warped by a known homography, with another (inverted, non-linear) intensity response,
+must be found again."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cade_cli.capture.homography import ecc_homography, gradient_magnitude, warp_band
+from cade_cli.errors import CadeError
+from synthetic import smooth_texture
+
+SHAPE = (240, 320)
+TRUE = np.array([[1.012, 0.018, 3.4], [-0.014, 0.991, -2.3], [2.5e-5, -1.5e-5, 1.0]])
+"""Band pixels -> reference pixels: a few px of shift, ~1 % of scale and shear, some perspective."""
+
+
+def mapped(homography: np.ndarray, points: np.ndarray) -> np.ndarray:
+    projected = homography @ np.vstack([points, np.ones(points.shape[1])])
+    return projected[:2] / projected[2]
+
+
+def grid_points(margin: int = 10, step: int = 10) -> np.ndarray:
+    rows, cols = np.mgrid[margin:SHAPE[0] - margin:step, margin:SHAPE[1] - margin:step]
+    return np.vstack([cols.ravel(), rows.ravel()]).astype(np.float64)
+
+
+def other_band(reference: np.ndarray, homography: np.ndarray) -> np.ndarray:
+    """The band a second lens sees: the reference scene at ``homography`` of each band pixel,
+    through an inverted, non-linear response (dark where the reference is bright)."""
+    import cv2
+    seen = cv2.warpPerspective(reference, homography, SHAPE[::-1], flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP,
+                               borderMode=cv2.BORDER_REFLECT)
+    return (1.0 - 0.8 * seen ** 2).astype(np.float32)
+
+
+@pytest.fixture
+def reference(rng) -> np.ndarray:
+    return smooth_texture(rng, SHAPE, sigma=2.0)
+
+
+def test_a_known_homography_is_recovered_across_an_inverted_response(reference):
+    found = ecc_homography(reference, other_band(reference, TRUE))
+    error = np.abs(mapped(found, grid_points()) - mapped(TRUE, grid_points()))
+    assert error.max() < 0.1
+    assert found[2, 2] == pytest.approx(1.0)
+
+
+def test_a_start_near_the_answer_is_refined_and_identity_is_kept(reference):
+    start = TRUE.copy()
+    start[:2, 2] += (1.5, -1.0)  # e.g. the lens rotations, off by the parallax
+    found = ecc_homography(reference, other_band(reference, TRUE), init=start, levels=2)
+    assert np.abs(mapped(found, grid_points()) - mapped(TRUE, grid_points())).max() < 0.1
+    same = ecc_homography(reference, reference)
+    assert np.abs(mapped(same, grid_points()) - grid_points()).max() < 0.01
+
+
+def test_the_warped_band_lands_on_the_reference_and_marks_the_unseen(reference):
+    band = other_band(reference, TRUE)
+    warped = warp_band(band, TRUE, SHAPE[::-1])
+    assert np.isnan(warped).any() and np.isfinite(warped).mean() > 0.9
+    inner = np.isfinite(warped)
+    inner[:12], inner[-12:], inner[:, :12], inner[:, -12:] = False, False, False, False
+    expected = 1.0 - 0.8 * reference ** 2
+    assert np.abs(warped[inner] - expected[inner]).max() < 0.02
+
+
+def test_a_band_that_shares_no_structure_is_refused(rng, reference):
+    noise = rng.random(SHAPE).astype(np.float32)
+    with pytest.raises(CadeError, match="ECC"):
+        ecc_homography(reference, noise)
+
+
+def test_bad_inputs_are_refused_in_one_line(reference):
+    with pytest.raises(CadeError, match="one size"):
+        ecc_homography(reference, reference[:-1])
+    with pytest.raises(CadeError, match="invertible"):
+        ecc_homography(reference, reference, init=np.zeros((3, 3)))
+    with pytest.raises(CadeError, match="pyramid levels"):
+        ecc_homography(reference, reference, levels=6)
+    with pytest.raises(CadeError, match="no finite value"):
+        gradient_magnitude(np.full(SHAPE, np.nan))
+
+
+def test_the_gradient_image_ignores_contrast_and_the_border_of_the_unseen(reference):
+    assert np.allclose(gradient_magnitude(reference), gradient_magnitude(5.0 - 3.0 * reference), atol=1e-5)
+    partial = reference.copy()
+    partial[:, :100] = np.nan
+    gradient = gradient_magnitude(partial)
+    assert np.all(gradient[:, :104] == 0) and np.isfinite(gradient).all()
