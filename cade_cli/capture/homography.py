@@ -23,14 +23,20 @@ ECC_EPSILON = 1e-7
 MIN_CORRELATION = 0.2
 """Below this final ECC correlation of the gradient images the bands share too little
 structure for the homography to mean anything."""
+LOCAL_WINDOW = 61
+"""Side, px, of the window each pixel is standardised in before ECC's gradients (MicaSense
+equalises each band in a disk of radius 30 px): faint texture (a canopy) then weighs as much
+as strong edges (a bright platform) in the fit."""
 GRADIENT_SIGMA = 1.0
 """Gaussian smoothing (px) before the Sobel gradient, as MicaSense's ``gaussian(normalize(.))``."""
 
 
-def gradient_magnitude(band: np.ndarray, *, sigma: float = GRADIENT_SIGMA) -> np.ndarray:
+def gradient_magnitude(band: np.ndarray, *, sigma: float = GRADIENT_SIGMA, local: int = 0) -> np.ndarray:
     """Gradient image of one band, independent of its contrast and of the sign of it.
 
-    The band is scaled by its own 1st and 99th percentiles of finite values, smoothed by a
+    The band is scaled by its own 1st and 99th percentiles of finite values (with ``local`` >
+    0: standardised by the mean and standard deviation in a ``local`` px box around each
+    pixel, clipped to +-3 standard deviations), smoothed by a
     Gaussian of ``sigma`` px, and replaced by ``sqrt(gx^2 + gy^2)`` of 3x3 Sobel gradients;
     NaN (not seen) becomes 0, as do pixels within 4 px of one (no false edge at the
     border of what was seen).
@@ -51,6 +57,12 @@ def gradient_magnitude(band: np.ndarray, *, sigma: float = GRADIENT_SIGMA) -> np
     scaled = np.where(finite, (band - low) / max(float(high - low), 1e-12), 0.0).astype(np.float32)
     if not finite.all():  # fill the unseen with the nearest seen values' level: no step at the border
         scaled[~finite] = float(np.median(scaled[finite]))
+    if local > 0:
+        box = (local, local)
+        mean = cv2.boxFilter(scaled, cv2.CV_32F, box, borderType=cv2.BORDER_REFLECT)
+        variance = np.maximum(cv2.boxFilter(scaled * scaled, cv2.CV_32F, box, borderType=cv2.BORDER_REFLECT)
+                              - mean * mean, 0.0)
+        scaled = np.clip((scaled - mean) / np.sqrt(variance + 1e-6), -3.0, 3.0)
     if sigma > 0:
         scaled = cv2.GaussianBlur(scaled, (0, 0), sigma)
     gx = cv2.Sobel(scaled, cv2.CV_32F, 1, 0, ksize=3)
@@ -82,8 +94,9 @@ def ecc_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarray 
                    epsilon: float = ECC_EPSILON, min_correlation: float = MIN_CORRELATION) -> np.ndarray:
     """The homography that maps ``band``'s pixel coordinates onto ``reference``'s.
 
-    ECC maximises the correlation of the two bands' :func:`gradient_magnitude` images (so a
-    band whose contrast differs, or is inverted, still aligns), on a pyramid of ``levels``
+    ECC maximises the correlation of the two bands' :func:`gradient_magnitude` images, each
+    band locally standardised first (:data:`LOCAL_WINDOW`; so a band whose contrast differs,
+    or is inverted, still aligns, and faint texture counts), on a pyramid of ``levels``
     (each half the size of the one before), from the coarsest to full size, each level
     starting from the one before. Pixel centres are at integer coordinates, (x, y) = (column, row).
 
@@ -114,7 +127,7 @@ def ecc_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarray 
     if start.shape != (3, 3) or not np.isfinite(start).all() or abs(np.linalg.det(start)) < 1e-12:
         raise CadeError(f"init must be an invertible, finite 3x3 homography, got {np.shape(init)}")
     to_band = np.linalg.inv(start)  # ECC's warp: template (reference) pixels -> input (band) pixels
-    pyramids = [_pyramid(gradient_magnitude(image), levels) for image in (reference, band)]
+    pyramids = [_pyramid(gradient_magnitude(image, local=LOCAL_WINDOW), levels) for image in (reference, band)]
     seen = _pyramid(np.isfinite(reference).astype(np.float32), levels)
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, epsilon)
     correlation = 0.0
