@@ -24,7 +24,7 @@ import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -38,8 +38,9 @@ from cade_cli.errors import CadeError
 METHODS = ("unaligned", "rotations", "homography", "cade")
 REFERENCE_BAND = "Green"
 """The vendors' reference band (MicaSense: RigCameraIndex 1; Sequoia: the rig reference)."""
-SEARCH = 48
-"""px searched around each window: above the largest raw offsets of these cameras (~40 px)."""
+SEARCH = 96
+"""px searched around each window: above the largest offsets of these cameras' raw bands (~50 px)
+and the parallax a homography leaves on the Sequoia capture (tens of px)."""
 CROP = 192
 """Side, px, of a picture's crop (written at 2x)."""
 
@@ -177,6 +178,8 @@ class Registered:
     bands: dict[str, np.ndarray]
     seconds: float
     note: str = ""
+    failures: dict[str, str] = field(default_factory=dict)
+    """Bands the method could not register: why."""
 
 
 def register_plane(bands: list[_Band], reference: _Band, *, ecc: bool) -> Registered:
@@ -185,16 +188,20 @@ def register_plane(bands: list[_Band], reference: _Band, *, ecc: bool) -> Regist
     start = time.perf_counter()
     flat = {band.name: undistorted(band) for band in bands}
     reference_image, reference_camera = flat[reference.name]
-    registered = {}
+    registered, failures = {}, {}
     for band in bands:
         if band is reference:
             continue
         image, camera = flat[band.name]
         homography = rotation_homography(band, camera, reference, reference_camera)
-        if ecc:
-            homography = ecc_homography(reference_image, image, init=homography)
+        try:
+            if ecc:
+                homography = ecc_homography(reference_image, image, init=homography)
+        except CadeError as error:
+            failures[band.name] = f"failed: {error}"
+            continue
         registered[band.name] = warp_band(image, homography, image.shape[::-1])
-    return Registered(reference_image, registered, time.perf_counter() - start)
+    return Registered(reference_image, registered, time.perf_counter() - start, failures=failures)
 
 
 def cade_available() -> bool:
@@ -227,11 +234,8 @@ def register(bands: list[_Band], *, with_cade: bool) -> dict[str, Registered]:
     if reference is None:
         raise CadeError(f"{bands[0].path.parent}: no {REFERENCE_BAND} band in capture {bands[0].capture}")
     results = {"unaligned": Registered(reference.image, {b.name: b.image for b in bands if b is not reference}, 0.0),
-               "rotations": register_plane(bands, reference, ecc=False)}
-    try:
-        results["homography"] = register_plane(bands, reference, ecc=True)
-    except CadeError as error:
-        results["homography"] = Registered(np.empty(0), {}, 0.0, f"failed: {error}")
+               "rotations": register_plane(bands, reference, ecc=False),
+               "homography": register_plane(bands, reference, ecc=True)}
     results["cade"] = register_cade(bands, reference) if with_cade else Registered(np.empty(0), {}, 0.0, "n/a")
     return results
 
@@ -257,14 +261,17 @@ def table(scores: dict[str, dict[str, dict[str, Alignment]]], results: dict[str,
             for band, a in per_method.get(method, {}).items():
                 lines.append(f"| {capture} | {band} | {method} | {_cell(a.median)} | {_cell(a.p90)} | "
                              f"{_cell(a.share_over_1px, 100, 1)} | {_cell(a.coverage, 100, 1)} | {a.windows} | |")
+            for band, why in results[capture][method].failures.items():
+                lines.append(f"| {capture} | {band} | {method} | {why} | | | | | |")
             if note:
                 lines.append(f"| {capture} | all | {method} | {note} | | | | | |")
         for method in METHODS:
             rows = list(per_method.get(method, {}).values())
             if not rows:
                 continue
-            mean = lambda field: float(np.nanmean([getattr(a, field) for a in rows]))  # noqa: E731
-            lines.append(f"| **{capture}** | **mean** | **{method}** | {_cell(mean('median'))} | {_cell(mean('p90'))} | "
+            mean = lambda name: float(np.nanmean([getattr(a, name) for a in rows]))  # noqa: E731
+            label = "mean" if not results[capture][method].failures else f"mean of {len(rows)}"
+            lines.append(f"| **{capture}** | **{label}** | **{method}** | {_cell(mean('median'))} | {_cell(mean('p90'))} | "
                          f"{_cell(mean('share_over_1px'), 100, 1)} | {_cell(mean('coverage'), 100, 1)} | "
                          f"{sum(a.windows for a in rows)} | {results[capture][method].seconds:.1f} |")
     return "\n".join(lines)
@@ -332,8 +339,8 @@ def main() -> None:
         for capture, bands in captures.items():
             results[capture] = register(bands, with_cade=with_cade)
             scores[capture] = score(results[capture])
-            times = ", ".join(f"{m} {r.seconds:.1f} s" if not r.note else f"{m} {r.note}"
-                              for m, r in results[capture].items())
+            times = ", ".join(f"{m} {r.seconds:.1f} s" + (f" ({len(r.failures)} bands failed)" if r.failures else "")
+                              if not r.note else f"{m} {r.note}" for m, r in results[capture].items())
             print(f"{capture}: {len(bands)} bands; {times}", file=sys.stderr)
             if arguments.pictures is not None:
                 arguments.pictures.mkdir(parents=True, exist_ok=True)
