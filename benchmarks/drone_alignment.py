@@ -10,7 +10,8 @@ coverage kept):
   rotations   undistorted (Brown-Conrady for MicaSense, Parrot's fisheye for the Sequoia), then
               the lens rotations of the RigRelatives tags, K_ref R_ref^T R_band K_band^-1;
   homography  one ECC homography per band on gradient images, started from the rotations
-              (the vendor's method, cade_cli.capture.homography);
+              (the vendor's method, cade_cli.capture.homography); where ECC fails from there,
+              started from a feature-match homography instead (marked homography*);
   cade        `python -m cade_cli register-capture` where that command exists, else n/a.
 The times are of this process on whatever machine runs it.
 """
@@ -32,7 +33,7 @@ import numpy as np
 import tifffile
 
 from cade_cli.capture.alignment import Alignment, alignment, window_shifts
-from cade_cli.capture.homography import ecc_homography, warp_band
+from cade_cli.capture.homography import ecc_homography, feature_homography, warp_band
 from cade_cli.errors import CadeError
 
 METHODS = ("unaligned", "rotations", "homography", "cade")
@@ -180,15 +181,18 @@ class Registered:
     note: str = ""
     failures: dict[str, str] = field(default_factory=dict)
     """Bands the method could not register: why."""
+    starts: dict[str, str] = field(default_factory=dict)
+    """Where each band's ECC started: "rotations" or "features"."""
 
 
 def register_plane(bands: list[_Band], reference: _Band, *, ecc: bool) -> Registered:
     """Undistort every band, then warp each onto the reference by its lens rotation, or (``ecc``)
-    by the ECC homography started from it."""
+    by the ECC homography started from it; where that fails (the rotations far off at close
+    range), by the ECC homography started from feature matches (``homography*`` in the table)."""
     start = time.perf_counter()
     flat = {band.name: undistorted(band) for band in bands}
     reference_image, reference_camera = flat[reference.name]
-    registered, failures = {}, {}
+    registered, failures, starts = {}, {}, {}
     for band in bands:
         if band is reference:
             continue
@@ -196,12 +200,27 @@ def register_plane(bands: list[_Band], reference: _Band, *, ecc: bool) -> Regist
         homography = rotation_homography(band, camera, reference, reference_camera)
         try:
             if ecc:
-                homography = ecc_homography(reference_image, image, init=homography)
+                homography = _ecc_from_rotations_or_features(reference_image, image, homography)
+                starts[band.name] = "rotations" if homography[1] is None else "features"
+                homography = homography[0]
         except CadeError as error:
             failures[band.name] = f"failed: {error}"
             continue
         registered[band.name] = warp_band(image, homography, image.shape[::-1])
-    return Registered(reference_image, registered, time.perf_counter() - start, failures=failures)
+    return Registered(reference_image, registered, time.perf_counter() - start, failures=failures, starts=starts)
+
+
+def _ecc_from_rotations_or_features(reference: np.ndarray, band: np.ndarray, rotations: np.ndarray
+                                    ) -> tuple[np.ndarray, int | None]:
+    """The ECC homography from the rotations, else from the feature homography (and its inliers)."""
+    try:
+        return ecc_homography(reference, band, init=rotations), None
+    except CadeError as first:
+        try:
+            start, inliers = feature_homography(reference, band)
+            return ecc_homography(reference, band, init=start), inliers
+        except CadeError as second:
+            raise CadeError(f"from the rotations: {first}; from feature matches: {second}") from None
 
 
 def cade_available() -> bool:
@@ -259,7 +278,8 @@ def table(scores: dict[str, dict[str, dict[str, Alignment]]], results: dict[str,
         for method in METHODS:
             note = results[capture][method].note
             for band, a in per_method.get(method, {}).items():
-                lines.append(f"| {capture} | {band} | {method} | {_cell(a.median)} | {_cell(a.p90)} | "
+                shown = method + ("*" if results[capture][method].starts.get(band) == "features" else "")
+                lines.append(f"| {capture} | {band} | {shown} | {_cell(a.median)} | {_cell(a.p90)} | "
                              f"{_cell(a.share_over_1px, 100, 1)} | {_cell(a.coverage, 100, 1)} | {a.windows} | |")
             for band, why in results[capture][method].failures.items():
                 lines.append(f"| {capture} | {band} | {method} | {why} | | | | | |")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cade_cli.capture.homography import ecc_homography, gradient_magnitude, warp_band
+from cade_cli.capture.homography import ecc_homography, feature_homography, gradient_magnitude, warp_band
 from cade_cli.errors import CadeError
 from synthetic import smooth_texture
 
@@ -70,6 +70,23 @@ def test_a_band_that_shares_no_structure_is_refused(rng, reference):
     noise = rng.random(SHAPE).astype(np.float32)
     with pytest.raises(CadeError, match="ECC"):
         ecc_homography(reference, noise)
+    with pytest.raises(CadeError, match="feature matches"):
+        feature_homography(reference, noise)
+
+
+def test_feature_matches_start_ecc_where_the_start_is_far_off(reference):
+    """40 px away (close range: the lens rotations say little) ECC alone does not find the
+    band; from the feature-match homography it does."""
+    far = TRUE.copy()
+    far[:2, 2] += (40.0, -25.0)
+    band = other_band(reference, far)
+    with pytest.raises(CadeError, match=r"^ECC did not converge at pyramid level 2 \(Iterations do not converge\)"):
+        ecc_homography(reference, band)
+    start, inliers = feature_homography(reference, band)
+    assert inliers >= 12
+    assert np.median(np.abs(mapped(start, grid_points()) - mapped(far, grid_points()))) < 1.0
+    found = ecc_homography(reference, band, init=start)
+    assert np.abs(mapped(found, grid_points()) - mapped(far, grid_points())).max() < 0.1
 
 
 def test_bad_inputs_are_refused_in_one_line(reference):

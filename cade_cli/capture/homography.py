@@ -8,10 +8,13 @@ parallax-correct registration is measured against, and ``--plane-only``'s result
 
 from __future__ import annotations
 
+import re
+
 import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.matching.sparse import sparse_matches
 
 ECC_LEVELS = 3
 """Pyramid levels (full resolution and two halvings): MicaSense's ``int(width / (1280 / 3)) - 1``
@@ -142,7 +145,7 @@ def ecc_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarray 
                                                      (warp / warp[2, 2]).astype(np.float32),
                                                      cv2.MOTION_HOMOGRAPHY, criteria, mask, 1)
         except cv2.error as error:
-            raise CadeError(f"ECC did not converge at pyramid level {level} ({_first_line(error)}); the bands "
+            raise CadeError(f"ECC did not converge at pyramid level {level} ({_opencv_reason(error)}); the bands "
                             "share too little structure or the start is too far off: give a better init") from None
         to_band = scale @ warp.astype(np.float64) @ np.linalg.inv(scale)
     if not np.isfinite(to_band).all() or not correlation >= min_correlation:
@@ -152,9 +155,38 @@ def ecc_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarray 
     return homography / homography[2, 2]
 
 
-def _first_line(error: Exception) -> str:
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    return lines[-1] if lines else type(error).__name__
+def _opencv_reason(error: Exception) -> str:
+    """OpenCV's reason (``error: (-7:Iterations do not converge) ...`` -> ``Iterations do not converge``)."""
+    found = re.search(r"\(-?\d+:([^)]*)\)", str(error))
+    return found.group(1) if found else type(error).__name__
+
+
+FEATURE_INLIERS = 12
+"""Fewest RANSAC inliers :func:`feature_homography` accepts (a homography has 8 degrees of
+freedom; 12 matches within :data:`RANSAC_THRESHOLD` of one seldom agree by chance)."""
+RANSAC_THRESHOLD = 3.0
+"""px: a feature match farther than this from the homography is an outlier."""
+
+
+def feature_homography(reference: np.ndarray, band: np.ndarray) -> tuple[np.ndarray, int]:
+    """A homography (band pixels -> reference pixels) from sparse feature matches on gradient
+    images (:func:`cade_cli.matching.sparse.sparse_matches`, SIFT) and RANSAC, as
+    OpenDroneMap's multispectral alignment finds one; a start for :func:`ecc_homography` where
+    the lens rotations are far off (close range). Returns it and its number of inliers.
+
+    Raises:
+        CadeError: fewer than :data:`FEATURE_INLIERS` inliers.
+    """
+    filled = [np.where(np.isfinite(image), image, np.nanmedian(image)).astype(np.float32)
+              for image in (np.asarray(reference, np.float32), np.asarray(band, np.float32))]
+    on_reference, on_band = sparse_matches(filled[0], filled[1])
+    homography, inliers = (None, None) if len(on_band) < 4 else cv2.findHomography(
+        on_band, on_reference, cv2.RANSAC, RANSAC_THRESHOLD)
+    count = 0 if inliers is None else int(inliers.sum())
+    if homography is None or count < FEATURE_INLIERS:
+        raise CadeError(f"only {count} feature matches agree on one homography (need {FEATURE_INLIERS}): the bands "
+                        "share too little structure")
+    return homography / homography[2, 2], count
 
 
 def warp_band(band: np.ndarray, homography: np.ndarray, size: tuple[int, int]) -> np.ndarray:
