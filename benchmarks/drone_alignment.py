@@ -35,6 +35,7 @@ import tifffile
 from cade_cli.capture.alignment import Alignment, alignment, window_shifts
 from cade_cli.capture.homography import ecc_homography, feature_homography, warp_band
 from cade_cli.errors import CadeError
+from cade_cli.io.atomic import atomic_outputs
 
 METHODS = ("unaligned", "rotations", "homography", "cade")
 REFERENCE_BAND = "Green"
@@ -353,24 +354,29 @@ def main() -> None:
     try:
         if not arguments.data_dir.is_dir():
             raise CadeError(f"--data-dir {arguments.data_dir} is not a folder")
-        with_cade = cade_available()
-        captures = find_captures(arguments.data_dir)
-        scores, results = {}, {}
-        for capture, bands in captures.items():
-            results[capture] = register(bands, with_cade=with_cade)
-            scores[capture] = score(results[capture])
-            times = ", ".join(f"{m} {r.seconds:.1f} s" + (f" ({len(r.failures)} bands failed)" if r.failures else "")
-                              if not r.note else f"{m} {r.note}" for m, r in results[capture].items())
-            print(f"{capture}: {len(bands)} bands; {times}", file=sys.stderr)
-            if arguments.pictures is not None:
-                arguments.pictures.mkdir(parents=True, exist_ok=True)
-                write_pictures(arguments.pictures, capture, results[capture])
-        text = table(scores, results)
-        print(text)
-        if arguments.markdown is not None:
-            arguments.markdown.write_text(text + "\n")
+        with atomic_outputs([arguments.markdown], folders=[arguments.pictures]) as staged:  # all or nothing
+            text = run(arguments.data_dir, pictures=staged.get(arguments.pictures))
+            print(text)
+            if arguments.markdown is not None:
+                staged[arguments.markdown].write_text(text + "\n")
     except CadeError as error:
         raise SystemExit(f"drone_alignment: error: {error}") from None
+
+
+def run(data_dir: Path, *, pictures: Path | None) -> str:
+    """Every capture under ``data_dir`` registered by every method and scored (the Markdown
+    table is returned; each capture's times go to stderr as it ends); crops into ``pictures``."""
+    with_cade = cade_available()
+    scores, results = {}, {}
+    for capture, bands in find_captures(data_dir).items():
+        results[capture] = register(bands, with_cade=with_cade)
+        scores[capture] = score(results[capture])
+        times = ", ".join(f"{m} {r.seconds:.1f} s" + (f" ({len(r.failures)} bands failed)" if r.failures else "")
+                          if not r.note else f"{m} {r.note}" for m, r in results[capture].items())
+        print(f"{capture}: {len(bands)} bands; {times}", file=sys.stderr)
+        if pictures is not None:
+            write_pictures(pictures, capture, results[capture])
+    return table(scores, results)
 
 
 if __name__ == "__main__":

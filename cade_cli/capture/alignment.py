@@ -23,8 +23,8 @@ MIN_TEXTURE = 0.15
 of that band's typical textured window (the 90th percentile of the windows' means)."""
 MIN_PEAK = 0.45
 """A window is scored only where the normalised cross-correlation peak reaches this (the best
-of ~37,000 places a 96 px search tries between unrelated smooth textures stays below 0.4; the
-bands of the real captures mostly match at 0.5-0.95)."""
+of the ~37,000 places a 96 px search tries between unrelated smooth textures stayed below 0.4;
+the raw bands of a bench capture peak at 0.47-0.96, 10th to 90th percentile)."""
 MAX_AMBIGUITY = 0.9
 """... and where no other peak (beyond :data:`PEAK_RADIUS`) reaches this share of it
 (repeated structure, e.g. rows of a crop, gives no single answer)."""
@@ -59,8 +59,14 @@ class WindowShifts:
 
 @dataclass(frozen=True)
 class Alignment:
-    """A registered band's alignment with the reference: residual-shift magnitude statistics
-    over the scored windows (px; NaN when no window was scored) and the coverage kept."""
+    """A registered band's alignment with the reference.
+
+    ``median``, ``p90``: of the scored windows' residual-shift lengths, px (NaN when no window
+    was scored); ``share_over_1px``: the share of them above :data:`OVER`, in [0, 1];
+    ``coverage``: the share of the reference's valid pixels the band has a value at;
+    ``windows``: how many windows were scored; ``beyond``: how many of those matched at the
+    edge of the search (their shift a lower bound).
+    """
 
     median: float
     p90: float
