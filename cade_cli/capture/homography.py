@@ -133,7 +133,7 @@ def ecc_homography(reference: np.ndarray, band: np.ndarray, *, init: np.ndarray 
         raise CadeError(f"init must be an invertible, finite 3x3 homography, got {np.shape(init)}")
     to_band = np.linalg.inv(start)  # ECC's warp: template (reference) pixels -> input (band) pixels
     pyramids = [_pyramid(gradient_magnitude(image, local=LOCAL_WINDOW), levels) for image in (reference, band)]
-    seen = _pyramid(np.isfinite(reference).astype(np.float32), levels)
+    seen = _pyramid(np.isfinite(band).astype(np.float32), levels)  # ECC's mask is the input's (the band's)
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, iterations, epsilon)
     correlation = 0.0
     for level in reversed(range(levels)):
