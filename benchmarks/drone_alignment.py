@@ -44,7 +44,7 @@ SEARCH = 96
 """px searched around each window: above the largest offsets of these cameras' raw bands (~50 px)
 and the parallax a homography leaves on the Sequoia capture (tens of px)."""
 CROP = 192
-"""Side, px, of a picture's crop (written at 2x)."""
+"""Side, px, of a picture's crop (written at full resolution)."""
 
 
 # --- A minimal reader of the bands' metadata, private to this benchmark: to be replaced by the
@@ -322,7 +322,7 @@ def worst_place(reference: np.ndarray, registered: dict[str, np.ndarray]) -> tup
 
 
 def write_pictures(folder: Path, capture: str, results: dict[str, Registered]) -> list[Path]:
-    """A crop (:data:`CROP` px, shown 2x) of each of unaligned / homography / cade where the
+    """A crop (:data:`CROP` px) of each of unaligned / homography / cade where the
     homography leaves the largest residual shift, as ``<capture>-<band>-<method>.png``."""
     plane = results["homography"]
     if not plane.bands:
@@ -337,10 +337,9 @@ def write_pictures(folder: Path, capture: str, results: dict[str, Registered]) -
         top = int(np.clip(row - CROP // 2, 0, height - CROP))
         left = int(np.clip(column - CROP // 2, 0, width - CROP))
         crop = (slice(top, top + CROP), slice(left, left + CROP))
-        picture = cv2.resize(overlay(result.reference[crop], result.bands[band][crop]), None, fx=2, fy=2,
-                             interpolation=cv2.INTER_NEAREST)
         path = folder / f"{capture.replace('/', '-')}-{band.replace(' ', '')}-{method}.png"
-        cv2.imwrite(str(path), picture)
+        cv2.imwrite(str(path), overlay(result.reference[crop], result.bands[band][crop]),
+                    [cv2.IMWRITE_PNG_COMPRESSION, 9])
         written.append(path)
     return written
 
