@@ -14,7 +14,8 @@ torch = pytest.importorskip("torch")
 from cade_cli.train.batches import GeneratedBatches
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
-from cade_cli.train.fit import average_checkpoints, learning_rate, train  # noqa: E402
+from cade_cli.train.checkpoints import average_checkpoints  # noqa: E402
+from cade_cli.train.fit import learning_rate, train  # noqa: E402
 from cade_cli.train.model import (  # noqa: E402
     LEGACY_DESIGN,
     CadeNet,
