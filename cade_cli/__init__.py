@@ -13,7 +13,7 @@ from __future__ import annotations
 from importlib import import_module
 from typing import Any
 
-__version__ = "0.1.0"
+from cade_cli.version import __version__
 
 _LAZY = {
     "estimate_disparity": "cade_cli.stereo",

@@ -164,6 +164,12 @@ def test_manifest_errors_name_the_line(tmp_path):
     manifest.write_text("left,right,output,max_disp\na.png,b.png,o.pfm,many\n")
     with pytest.raises(CadeError, match=r"pairs.csv:2: --max-disp 'many'"):
         pairs_from_manifest(manifest, options=PairOptions())
+    manifest.write_text("left,right,output,min_disp,max_disp\na.png,b.png,o.pfm,,-1\nc.png,d.png,p.pfm,5,5\n")
+    with pytest.raises(CadeError, match=r"pairs.csv:2: --max-disp -1 is below --min-disp 0"):
+        pairs_from_manifest(manifest, options=PairOptions())
+    manifest.write_text("left,right,output,min_disp,max_disp\nc.png,d.png,p.pfm,5,5\n")
+    with pytest.raises(CadeError, match=r"pairs.csv:2: --min-disp 5 and --max-disp 5 leave one disparity"):
+        pairs_from_manifest(manifest, options=PairOptions())
     manifest.write_text("left,right\na.png,b.png\n")
     with pytest.raises(CadeError, match="no column output"):
         pairs_from_manifest(manifest, options=PairOptions())
@@ -190,6 +196,8 @@ BAD_BATCHES = {
     "bad max-disp": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--max-disp", "x"], "--max-disp"),
     "unknown method": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--method", "magic"],
                        "unknown method"),
+    "one-value range": (["--left", "cam0/*.png", "--right", "cam1/*.png", "-o", "out", "--max-disp", "0"],
+                        "give a --max-disp above --min-disp"),
 }
 
 

@@ -315,6 +315,34 @@ def test_png_output_refuses_a_range_beyond_it_before_matching(tmp_path, rng, cap
         assert ".tmp-" not in stderr and not out.exists()
 
 
+def test_an_empty_or_one_value_range_is_refused_before_any_work(tmp_path, rng, capsys, monkeypatch):
+    """--max-disp 0 with the default --min-disp 0 (and any max == min) would give every pixel the one
+    disparity, "valid 100 %": disparity and register refuse it before reading the pair, in one line
+    that says what to give; a range entirely at or below zero stays allowed."""
+    import cade_cli.cli.pairs
+
+    def no_reading(*args, **kwargs):
+        raise AssertionError("read the pair before refusing the range")
+
+    left, right = shifted_texture_files(tmp_path, rng, 3)
+    monkeypatch.setattr(cade_cli.cli.pairs, "read_pair", no_reading)
+    out = tmp_path / "d.pfm"
+    for command in ("disparity", "register"):
+        for bounds, message in ((["--max-disp", 0], "--min-disp 0 and --max-disp 0 leave one disparity"),
+                                (["--min-disp", 7, "--max-disp", 7], "--min-disp 7 and --max-disp 7 leave one"),
+                                (["--min-disp", 4, "--max-disp", 2], "--max-disp 2 is below --min-disp 4")):
+            code, stdout, stderr = run_cade([command, left, right, "-o", out, *bounds], capsys)
+            assert code != 0 and len(stderr.strip().splitlines()) == 1, stderr
+            assert stderr.startswith("cade: error:") and message in stderr
+            assert "--max-disp" in stderr and not out.exists()
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import DisparityRange
+
+    with pytest.raises(CadeError, match=r"\[5, 5\] holds one value"):
+        DisparityRange(5, 5).check_for_width(64)
+    DisparityRange(-80, 0).check_for_width(100)  # entirely below zero: searched
+
+
 def test_range_entirely_below_zero_and_auto_for_register(tmp_path, rng, capsys):
     """--min-disp -30 --max-disp 0 finds a disparity of -12 (disparity and register), and register
     takes --max-disp / --min-disp auto like disparity does."""

@@ -1,6 +1,7 @@
-"""The package's layering (docs/architecture.md), checked on the code itself: which module
-may import which, no reaching into another module's private names, and the runtime never
-pulls in torch."""
+"""The package's layering and room sizes (docs/architecture.md), checked on the code itself: which
+module may import which, no import circle, no module over 400 lines and no function over 80 (but
+the listed ones), no reaching into another module's private names, and the runtime never pulls in
+torch."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ PACKAGE = ROOT / "cade_cli"
 LAYERS: dict[str, int] = {
     # 0: foundations (no cade_cli import but each other): errors, reading and writing, the transform
     "cade_cli.errors": 0, "cade_cli.allocator": 0, "cade_cli.spectral": 0, "cade_cli.model_card": 0,
-    "cade_cli.io": 0,
+    "cade_cli.io": 0, "cade_cli.version": 0,
     # 1: matchers
     "cade_cli.matching": 1,
     # 2: the library's entry points: one pair, rigs, scale (range, tiles)
@@ -36,6 +37,45 @@ LAYERS: dict[str, int] = {
 }
 """Layer of each module or package (a package's modules share its layer); a module may
 import its own layer and the layers below it."""
+
+PENDING_UPWARD_IMPORTS = {
+    # pending: html_report imports cade_cli.version's __version__ instead of the package root's
+    ("cade_cli.evaluation.html_report", "cade_cli"),
+}
+"""(module, imported) imports from a lower layer to a higher one, each to be mended by its owner."""
+
+MAX_MODULE_LINES = 400
+MAX_FUNCTION_LINES = 80
+"""Every module and every function (from its ``def`` to its last line) at most this long."""
+
+LONG_FUNCTIONS = {
+    # argued: a typer command's parameters are its options, one Annotated declaration each;
+    # fit takes 47 (86 lines of signature before its 37-line body)
+    "cade_cli/train/__main__.py:fit",
+    # argued: cade batch takes 31 options (65 lines of signature); pending: its engine loop
+    # (progress bar, interruption, the log: try ... finally) moves to a helper in cli/batch.py
+    # and it imports BatchSummary, log_document from scale/batch_log.py
+    "cade_cli/cli/batch.py:batch",
+    # pending: the side outputs' checks (--vis/--validity/--confidence) and the match-and-write
+    # block (StepBar ... print) move to two helpers in cli/pairs.py
+    "cade_cli/cli/pairs.py:disparity",
+    # pending: the --disparity-against-estimation option checks move to a helper in cli/pairs.py
+    "cade_cli/cli/pairs.py:register",
+    # pending: reading each camera's band and writing the cube, disparity and picture move to
+    # two helpers in cli/rigs.py
+    "cade_cli/cli/rigs.py:register_array",
+    # pending: the checks of tasks, protocols and degradations and the run's config dict move to
+    # two helpers in evaluation/loop.py
+    "cade_cli/evaluation/loop.py:run_benchmark",
+}
+"""Functions over :data:`MAX_FUNCTION_LINES`, as ``path:name``: two argued exceptions, and the
+pending ones of modules being edited elsewhere (each with its plan); mended, an entry must go."""
+
+PENDING_CYCLES = {
+    # pending: Record moves from evaluation/loop.py to a new evaluation/records.py that both import
+    frozenset({"cade_cli.evaluation.album", "cade_cli.evaluation.loop"}),
+}
+"""Import circles (the modules of each) to be broken by their owners."""
 
 
 def module_name(path: Path) -> str:
@@ -77,8 +117,8 @@ def test_every_module_has_a_layer():
 def test_imports_go_down_the_layers(path):
     own, own_layer = layer_of(module_name(path))
     for imported, names, line in imports_of(path):
-        if imported == "cade_cli" and names == ["__version__"]:
-            continue  # the version string, defined before the root imports anything
+        if (module_name(path), imported) in PENDING_UPWARD_IMPORTS:
+            continue
         if imported.split(".")[0] in ("torch", "onnx") and not own.startswith("cade_cli.train"):
             pytest.fail(f"{path.name}:{line} imports {imported}: only cade_cli.train may")
         if not imported.startswith("cade_cli"):
@@ -86,6 +126,98 @@ def test_imports_go_down_the_layers(path):
         target, target_layer = layer_of(imported)
         allowed = target_layer <= own_layer or own == "cade_cli"  # the root re-exports the public API
         assert allowed, f"{module_name(path)}:{line} (layer {own_layer}) imports {imported} (layer {target_layer})"
+
+
+def test_pending_upward_imports_are_still_there():
+    """An entry of :data:`PENDING_UPWARD_IMPORTS` goes once its import is mended."""
+    found = {(module_name(path), imported) for path in SOURCES for imported, _, _ in imports_of(path)}
+    assert PENDING_UPWARD_IMPORTS <= found, f"mended, remove from PENDING_UPWARD_IMPORTS: {PENDING_UPWARD_IMPORTS - found}"
+
+
+def test_no_module_is_over_400_lines():
+    long = [f"{path.relative_to(ROOT)} ({count})" for path in SOURCES
+            if (count := len(path.read_text().splitlines())) > MAX_MODULE_LINES]
+    assert not long, f"over {MAX_MODULE_LINES} lines: {', '.join(long)}; move a job of it into a module of its own"
+
+
+def function_lengths() -> dict[str, int]:
+    """``path:name`` -> lines, from ``def`` to the last line, of every function and method of the package."""
+    lengths = {}
+    for path in SOURCES:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                key = f"{path.relative_to(ROOT).as_posix()}:{node.name}"
+                lengths[key] = max(lengths.get(key, 0), node.end_lineno - node.lineno + 1)
+    return lengths
+
+
+def test_no_function_is_over_80_lines_but_the_listed_ones():
+    lengths = function_lengths()
+    long = [f"{key} ({count})" for key, count in lengths.items() if count > MAX_FUNCTION_LINES and key not in LONG_FUNCTIONS]
+    assert not long, f"over {MAX_FUNCTION_LINES} lines: {', '.join(long)}; move a step of it into a function"
+    mended = [key for key in LONG_FUNCTIONS if lengths.get(key, 0) <= MAX_FUNCTION_LINES]
+    assert not mended, f"within {MAX_FUNCTION_LINES} lines now (or gone): remove {', '.join(mended)} from LONG_FUNCTIONS"
+    argued = [line for line in Path(__file__).read_text().splitlines() if line.strip().startswith("# argued:")]
+    assert len(argued) <= 2, "two argued exceptions at most; the others are pending, each with its plan"
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Module -> the package's modules it imports (any import, in a function or for type
+    checking too; ``from package import module`` counts as the module)."""
+    modules = {module_name(path): path for path in SOURCES}
+    graph = {}
+    for name, path in modules.items():
+        targets = set()
+        for imported, names, _ in imports_of(path):
+            targets |= {f"{imported}.{item}" if f"{imported}.{item}" in modules else imported for item in names or [""]}
+        graph[name] = {target for target in targets if target in modules and target != name}
+    return graph
+
+
+def import_circles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    circles = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                members = stack[stack.index(node):]
+                del stack[stack.index(node):]
+                if len(members) > 1:
+                    circles.append(frozenset(members))
+    return circles
+
+
+def test_import_circles_are_found():
+    assert import_circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [frozenset("abc")]
+    assert import_circles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_circle():
+    circles = set(import_circles(import_graph()))
+    new = [" <-> ".join(sorted(circle)) for circle in circles - PENDING_CYCLES]
+    assert not new, f"import circles: {'; '.join(new)}; move what both need into a module of its own"
+    assert PENDING_CYCLES <= circles, f"broken, remove from PENDING_CYCLES: {PENDING_CYCLES - circles}"
 
 
 @pytest.mark.parametrize("path", SOURCES + sorted((ROOT / "benchmarks").glob("*.py")),

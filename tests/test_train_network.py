@@ -14,7 +14,8 @@ torch = pytest.importorskip("torch")
 from cade_cli.train.batches import GeneratedBatches
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, verify_onnx  # noqa: E402
-from cade_cli.train.fit import average_checkpoints, learning_rate, train  # noqa: E402
+from cade_cli.train.checkpoints import average_checkpoints  # noqa: E402
+from cade_cli.train.fit import learning_rate, train  # noqa: E402
 from cade_cli.train.model import (  # noqa: E402
     LEGACY_DESIGN,
     CadeNet,
@@ -315,7 +316,7 @@ def test_census_cost_peaks_at_the_shift_and_ignores_monotonic_intensity_changes(
     """A texture and its copy shifted by 8 px, the copy through an increasing tone curve:
     the census cost of the 1/4 level is 0.5 (identical bits) at level 2 (8 px) and lower
     at every other level."""
-    from cade_cli.train.model import census_cost
+    from cade_cli.train.census import census_cost
 
     generator = torch.Generator().manual_seed(1)
     left = torch.rand(1, 1, 32, 64, generator=generator)

@@ -12,10 +12,9 @@ from cade_cli import spectral
 from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
-from cade_cli.train.scenes import (
-    NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, TexturePool, _textured, procedural_texture, render_scene,
-)
+from cade_cli.train.scenes import NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, _textured, render_scene
 from cade_cli.train.shapes import random_shape
+from cade_cli.train.textures import TexturePool, procedural_texture
 from synthetic import write_real_scene
 
 

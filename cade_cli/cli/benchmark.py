@@ -35,17 +35,13 @@ def benchmark(
     """Score matchers on a dataset with the paper's protocols (CS, RGB) and print a Table-1-style summary."""
     import shlex
 
-    from rich.console import Console
-    from rich.table import Table
-
     from cade_cli.data import get_dataset
     from cade_cli.errors import CadeError
     from cade_cli.evaluation.album import TILE_WIDTH
     from cade_cli.evaluation.html_report import html_report
     from cade_cli.evaluation.loop import run_benchmark
-    from cade_cli.evaluation.report import confidence_table, confidence_title, left_out, markdown, pixel_sets, table, title
+    from cade_cli.evaluation.report import left_out, markdown
     from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
 
     if protocol is None:
         protocol = ",".join(get_dataset(dataset).default_protocols)
@@ -60,24 +56,7 @@ def benchmark(
     # Every output is checked before the run and staged during it; all appear at the end, or none.
     with atomic_outputs([json_file, report, html], folders=[save_dir]) as staged:
         with StepBar(None, f"benchmark {dataset}") as bar:  # one step per matcher run
-
-            learned = [name for name in split(methods) if name in LEARNED_METHODS]
-            if model is not None and not learned:
-                raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
-            models = split(model) if model is not None else []
-            if model is not None and not models:
-                raise CadeError(f"--model {model!r} names nothing; give a model, or leave it out for the shipped one")
-            chosen, matchers = split(methods), dict(MATCHERS)
-            if len(models) == 1:
-                matchers.update({name: get_matcher(name, model=models[0]) for name in learned})
-            elif models:  # one row per learned method and model: METHOD:MODEL
-                labels = [Path(name).stem if name.endswith(".json") else name for name in models]
-                if len(set(labels)) != len(labels):
-                    raise CadeError(f"--model names two models called the same ({', '.join(labels)}); rename a card")
-                chosen = [f"{name}:{label}" if name in learned else name
-                          for name in chosen for label in (labels if name in learned else [None])]
-                matchers.update({f"{name}:{label}": get_matcher(name, model=path)
-                                 for name in learned for label, path in zip(labels, models)})
+            chosen, matchers = benchmark_matchers(split(methods), model)
             run = run_benchmark(
                 dataset=dataset, data_dir=data_dir, methods=chosen, protocols=split(protocol),
                 preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
@@ -88,18 +67,7 @@ def benchmark(
             )
         if left_out(run):
             print_note(f"left out, as they do not apply: {left_out(run)}")
-        out = Console()
-        tables = [(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
-        confidence = confidence_table(run)  # how well each matcher's confidence ranks its errors
-        if confidence is not None:
-            tables.append((confidence_title(run), *confidence))
-        for heading, header, rows in tables:
-            rich_table = Table(title=heading, title_justify="left")
-            for i, name in enumerate(header):
-                rich_table.add_column(name, justify="left" if i == 0 else "right", no_wrap=i == 0)
-            for row in rows:
-                rich_table.add_row(*row)
-            out.print(rich_table)
+        print_tables(run)
         command = shlex.join(["cade", *sys.argv[1:]]) if sys.argv[1:2] == ["benchmark"] else None
         if json_file is not None:
             staged[json_file].write_text(run.to_json())
@@ -107,6 +75,55 @@ def benchmark(
             staged[report].write_text(markdown(run, command=command))
         if html is not None:
             staged[html].write_text(html_report(run, command=command), encoding="utf-8")
+
+
+def benchmark_matchers(methods: list[str], model: str | None) -> tuple[list[str], dict]:
+    """The rows ``cade benchmark`` scores and the matcher of each: ``methods`` as named, the
+    learned ones on the one ``--model`` given, or with several (comma-separated) one row per
+    learned method and model, ``METHOD:MODEL``."""
+    from cade_cli.errors import CadeError
+    from cade_cli.matching import LEARNED_METHODS, MATCHERS, get_matcher
+
+    learned = [name for name in methods if name in LEARNED_METHODS]
+    if model is not None and not learned:
+        raise CadeError(f"--model applies to {', '.join(LEARNED_METHODS)}; add one to --methods")
+    models = [item.strip() for item in model.split(",") if item.strip()] if model is not None else []
+    if model is not None and not models:
+        raise CadeError(f"--model {model!r} names nothing; give a model, or leave it out for the shipped one")
+    chosen, matchers = methods, dict(MATCHERS)
+    if len(models) == 1:
+        matchers.update({name: get_matcher(name, model=models[0]) for name in learned})
+    elif models:  # one row per learned method and model: METHOD:MODEL
+        labels = [Path(name).stem if name.endswith(".json") else name for name in models]
+        if len(set(labels)) != len(labels):
+            raise CadeError(f"--model names two models called the same ({', '.join(labels)}); rename a card")
+        chosen = [f"{name}:{label}" if name in learned else name
+                  for name in chosen for label in (labels if name in learned else [None])]
+        matchers.update({f"{name}:{label}": get_matcher(name, model=path)
+                         for name in learned for label, path in zip(labels, models)})
+    return chosen, matchers
+
+
+def print_tables(run) -> None:
+    """The benchmark's tables on stdout: one per pixel set, then how well each matcher's
+    confidence ranks its errors (where any matcher gives a confidence)."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from cade_cli.evaluation.report import confidence_table, confidence_title, pixel_sets, table, title
+
+    out = Console()
+    tables = [(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
+    confidence = confidence_table(run)  # how well each matcher's confidence ranks its errors
+    if confidence is not None:
+        tables.append((confidence_title(run), *confidence))
+    for heading, header, rows in tables:
+        rich_table = Table(title=heading, title_justify="left")
+        for i, name in enumerate(header):
+            rich_table.add_column(name, justify="left" if i == 0 else "right", no_wrap=i == 0)
+        for row in rows:
+            rich_table.add_row(*row)
+        out.print(rich_table)
 
 
 datasets_app = typer.Typer(

@@ -147,14 +147,12 @@ def resolve_max_disp(max_disp: int | None, width: int) -> int:
 
 def parse_range_options(min_disp: str | int, max_disp: str | int | None) -> tuple[int | str, int | str | None]:
     """--min-disp and --max-disp as given: whole pixels or 'auto' (:func:`cade_cli.scale.range.parse_bound`);
-    any range with max >= min, below zero included."""
-    from cade_cli.errors import CadeError
-    from cade_cli.scale.range import parse_bound
+    any range with max > min, below zero included (:func:`cade_cli.scale.range.check_bounds`)."""
+    from cade_cli.scale.range import check_bounds, parse_bound
 
     low = parse_bound(min_disp, option="min-disp")
     high = None if max_disp is None else parse_bound(max_disp, option="max-disp")
-    if isinstance(low, int) and isinstance(high, int) and high < low:
-        raise CadeError(f"--max-disp {high} is below --min-disp {low}; raise --max-disp or lower --min-disp")
+    check_bounds(low, high)
     return low, high
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 from urllib.parse import urlsplit
 
-from cade_cli import __version__
+from cade_cli.version import __version__
 from cade_cli.data.archives import archive_corruption, extract_archive
 from cade_cli.errors import CadeError
 from cade_cli.io.checksum import CHUNK_BYTES

@@ -43,6 +43,9 @@ class DisparityRange:
         if self.maximum < self.minimum:
             raise CadeError(f"max disparity {self.maximum} is below min disparity {self.minimum}; raise --max-disp "
                            "or lower --min-disp")
+        if self.maximum == self.minimum:
+            raise CadeError(f"disparity range [{self.minimum}, {self.maximum}] holds one value; give a --max-disp "
+                           "above --min-disp")
         if self.maximum >= width or -self.minimum >= width:
             raise CadeError(
                 f"disparity range [{self.minimum}, {self.maximum}] does not fit images {width} px wide; "

@@ -127,34 +127,12 @@ def calibrate_rig(cameras: Sequence[CameraImages], board: Board, *, reference: s
             of one camera with different sizes, fewer than :data:`MIN_VIEWS` usable views
             for a camera or a camera pair, a calibration OpenCV cannot solve.
     """
-    if len(cameras) < 2:
-        raise CadeError("calibration needs two or more cameras; give --camera NAME:BAND:PATTERN for each")
-    names = [camera.name for camera in cameras]
-    if len(set(names)) != len(names):
-        raise CadeError(f"camera names must differ, got {', '.join(names)}")
-    reference = names[0] if reference is None else reference
-    if reference not in names:
-        raise CadeError(f"reference camera {reference!r} is not one of {', '.join(names)}")
-    for camera in cameras:
-        if not camera.files:
-            raise CadeError(f"camera {camera.name} has no pictures; check its file pattern")
+    names, reference = _camera_names(cameras, reference)
     views = pair_views(cameras)
     notes: list[str] = []
     rejected: dict[str, dict] = {}  # view key -> why it was (partly) left out
     left_out: dict[str, dict[str, str]] = {name: {} for name in names}  # camera -> view key -> "outlier"
-    detections: dict[str, dict[str, Detection | None]] = {name: {} for name in names}
-    sizes: dict[str, tuple[int, int]] = {}
-    for key, files in views:
-        for name, path in files.items():
-            band, _ = read_band(path)
-            size = (band.shape[1], band.shape[0])
-            if sizes.setdefault(name, size) != size:
-                raise CadeError(f"{path} is {size[0]}x{size[1]} but camera {name}'s other pictures are "
-                                f"{sizes[name][0]}x{sizes[name][1]}; one camera, one image size")
-            detections[name][key] = detect_board(band, board)
-            if detections[name][key] is None:
-                notes.append(f"view {key}: board not found in {path}; left out for camera {name}")
-                rejected.setdefault(key, {"reason": notes[-1]})
+    detections, sizes = _detect_boards(views, board, names, notes, rejected)
     files_of = dict(views)
     intrinsics: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
     for name in names:
@@ -195,6 +173,43 @@ def calibrate_rig(cameras: Sequence[CameraImages], board: Board, *, reference: s
     rig = Rig(reference=reference, cameras=rig_cameras, calibration=calibration,
               rectification=stereo_rectification(unrectified, other))
     return CalibrationResult(rig=rig, views=views, detections=detections, left_out=left_out, notes=notes)
+
+
+def _camera_names(cameras: Sequence[CameraImages], reference: str | None) -> tuple[list[str], str]:
+    """The cameras' names and the reference's (the first camera's unless given), refusing
+    fewer than two cameras, a name given twice, an unknown reference or a camera without pictures."""
+    if len(cameras) < 2:
+        raise CadeError("calibration needs two or more cameras; give --camera NAME:BAND:PATTERN for each")
+    names = [camera.name for camera in cameras]
+    if len(set(names)) != len(names):
+        raise CadeError(f"camera names must differ, got {', '.join(names)}")
+    reference = names[0] if reference is None else reference
+    if reference not in names:
+        raise CadeError(f"reference camera {reference!r} is not one of {', '.join(names)}")
+    for camera in cameras:
+        if not camera.files:
+            raise CadeError(f"camera {camera.name} has no pictures; check its file pattern")
+    return names, reference
+
+
+def _detect_boards(views: list[tuple[str, dict[str, Path]]], board: Board, names: list[str], notes: list[str],
+                   rejected: dict[str, dict]) -> tuple[dict[str, dict[str, Detection | None]], dict[str, tuple[int, int]]]:
+    """The board found in every picture (camera -> view key -> detection, None where it was
+    not: noted, and the view recorded in ``rejected``) and each camera's image size (one per camera)."""
+    detections: dict[str, dict[str, Detection | None]] = {name: {} for name in names}
+    sizes: dict[str, tuple[int, int]] = {}
+    for key, files in views:
+        for name, path in files.items():
+            band, _ = read_band(path)
+            size = (band.shape[1], band.shape[0])
+            if sizes.setdefault(name, size) != size:
+                raise CadeError(f"{path} is {size[0]}x{size[1]} but camera {name}'s other pictures are "
+                                f"{sizes[name][0]}x{sizes[name][1]}; one camera, one image size")
+            detections[name][key] = detect_board(band, board)
+            if detections[name][key] is None:
+                notes.append(f"view {key}: board not found in {path}; left out for camera {name}")
+                rejected.setdefault(key, {"reason": notes[-1]})
+    return detections, sizes
 
 
 def _object_image_points(detection: Detection, board: Board, ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:

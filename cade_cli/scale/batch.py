@@ -1,7 +1,8 @@
 """Many pairs in one run (``cade batch``): the pair list, resume, one job per pair, and two engines.
 
 The pairs, their options and records are :mod:`cade_cli.scale.batch_pairs`, one pair's job
-:mod:`cade_cli.scale.batch_job`; this module holds the engines and the memory plan.
+:mod:`cade_cli.scale.batch_job`, the run's JSON log :mod:`cade_cli.scale.batch_log`; this module holds
+the engines and the memory plan.
 
 A batch is a list of :class:`Pair` (from two glob patterns matched by file name,
 :func:`pairs_from_patterns`, or a manifest CSV, :func:`pairs_from_manifest`). Each pair
@@ -40,23 +41,21 @@ memory limit when that is smaller (a worker tiles a pair that does not fit it).
 from __future__ import annotations
 
 import collections
-import datetime
 import functools
-import json
 import multiprocessing
 import multiprocessing.connection
 import os
 import signal
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from cade_cli import __version__
 from cade_cli.allocator import retain_freed_memory
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
 from cade_cli.scale.batch_job import remove_stale_temporaries, run_pair
+from cade_cli.scale.batch_log import BatchSummary, log_document  # noqa: F401  (cade batch imports them from here)
 from cade_cli.scale.batch_pairs import Pair, PairResult, worker_name
 from cade_cli.scale.memory import BASE_BYTES, available_memory_bytes, matching_memory_bytes
 
@@ -247,14 +246,7 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
     workers = [start() for _ in range(min(jobs, len(waiting)))]
     try:
         while waiting or any(worker.running for worker in workers):
-            for worker in workers:
-                if worker.running is None and waiting:
-                    worker.running = waiting.popleft()
-                    attempts[worker.running[0]] += 1
-                    try:
-                        worker.connection.send(worker.running)
-                    except (BrokenPipeError, OSError):
-                        pass  # a dead worker: found below by its sentinel
+            _hand_out(workers, waiting, attempts)
             busy = [worker for worker in workers if worker.running is not None]
             ready = multiprocessing.connection.wait([w.connection for w in busy] + [w.process.sentinel for w in busy])
             for slot, worker in enumerate(workers):
@@ -288,20 +280,37 @@ def run_local(pairs: Sequence[Pair], *, jobs: int = 1, threads: int | None = Non
                 os.kill(worker.process.pid, signal.SIGINT)
         raise
     finally:
-        for worker in workers:
-            try:
-                worker.connection.send(None)
-            except (BrokenPipeError, OSError):
-                pass
-        for worker in workers:
-            worker.process.join(timeout=30)
-            if worker.process.is_alive():
-                worker.process.terminate()
-                worker.process.join()
-            worker.connection.close()
+        _stop_workers(workers)
         # a signal that lands while a worker discards its temporary (or before it is tracked) leaves
         # it behind; every worker has ended, so no one else writes these pairs: as for a dead worker
         remove_stale_temporaries(interrupted)
+
+
+def _hand_out(workers: list[_Worker], waiting: collections.deque, attempts: collections.Counter) -> None:
+    """Send each idle worker the next waiting pair (counting its attempt)."""
+    for worker in workers:
+        if worker.running is None and waiting:
+            worker.running = waiting.popleft()
+            attempts[worker.running[0]] += 1
+            try:
+                worker.connection.send(worker.running)
+            except (BrokenPipeError, OSError):
+                pass  # a dead worker: found by its sentinel
+
+
+def _stop_workers(workers: list[_Worker]) -> None:
+    """Tell every worker to stop, wait for each (30 s, then terminate it), close its pipe."""
+    for worker in workers:
+        try:
+            worker.connection.send(None)
+        except (BrokenPipeError, OSError):
+            pass
+    for worker in workers:
+        worker.process.join(timeout=30)
+        if worker.process.is_alive():
+            worker.process.terminate()
+            worker.process.join()
+        worker.connection.close()
 
 
 def _retry_or_fail(index: int, pair: Pair, error: str, attempts: collections.Counter,
@@ -364,37 +373,3 @@ def run_dask(pairs: Sequence[Pair], *, address: str | None = None, scheduler_fil
         client.cancel(list(futures))
         if own:
             client.close()
-
-
-# --- the log ---------------------------------------------------------------------------------------------------------
-
-
-@dataclass
-class BatchSummary:
-    """Counts and timing of a batch."""
-
-    total: int
-    done: int = 0
-    skipped: int = 0
-    failed: int = 0
-    seconds: float = 0.0
-    interrupted: bool = False
-
-    def add(self, result: PairResult) -> None:
-        setattr(self, result.status, getattr(self, result.status) + 1)
-
-    @property
-    def pairs_per_minute(self) -> float:
-        return 60.0 * self.done / self.seconds if self.seconds > 0 else 0.0
-
-
-def log_document(results: Sequence[PairResult], summary: BatchSummary, *, config: dict) -> str:
-    """The JSON log of a batch: its configuration, summary and one entry per pair."""
-    return json.dumps({
-        "cade_version": __version__,
-        "finished_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "config": config,
-        "summary": {**asdict(summary), "pairs_per_minute": summary.pairs_per_minute},
-        "pairs": [{key: value for key, value in asdict(result).items() if value not in (None, (), {})}
-                  for result in results],
-    }, indent=1) + "\n"

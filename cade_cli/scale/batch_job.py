@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cade_cli import __version__
+from cade_cli.version import __version__
 from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs, intended_path
 from cade_cli.io.disparity import check_disparity_range

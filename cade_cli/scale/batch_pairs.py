@@ -21,7 +21,7 @@ from cade_cli.io.checksum import file_sha256
 from cade_cli.io.disparity import DISPARITY_SUFFIXES
 from cade_cli.io.image_files import SUPPORTED_IMAGE_SUFFIXES
 from cade_cli.scale.memory import default_memory_limit
-from cade_cli.scale.range import parse_bound
+from cade_cli.scale.range import check_bounds, parse_bound
 from cade_cli.stereo import DEFAULT_METHOD
 
 
@@ -91,8 +91,7 @@ class PairOptions:
         matcher.resolve_preprocess(self.preprocess)
         if self.fill not in ("row", "none"):
             raise CadeError(f"unknown --fill {self.fill!r}; choose row or none")
-        if isinstance(self.min_disp, int) and isinstance(self.max_disp, int) and self.max_disp < self.min_disp:
-            raise CadeError(f"--max-disp {self.max_disp} is below --min-disp {self.min_disp}; raise --max-disp")
+        check_bounds(self.min_disp, self.max_disp)
         if self.vis_range is not None and not self.vis:
             raise CadeError("--vis-range sets the colours of the --vis pictures; add --vis or drop --vis-range")
         if self.rig is None:
@@ -313,6 +312,7 @@ def pairs_from_manifest(manifest: Path, *, options: PairOptions) -> list[Pair]:
                     if not cells[name].isdigit():
                         raise CadeError(f"{name} must be a 0-based band number, got {cells[name]!r}")
                     overrides[name] = int(cells[name])
+            check_bounds(overrides.get("min_disp", options.min_disp), overrides.get("max_disp", options.max_disp))
         except CadeError as error:
             raise CadeError(f"{where}: {error}") from None
         paths = [base / Path(cells[name]).expanduser() for name in MANIFEST_COLUMNS]

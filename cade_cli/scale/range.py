@@ -228,6 +228,19 @@ def parse_bound(text: str | int, *, option: str, minimum: int | None = None) -> 
     return number
 
 
+def check_bounds(low: int | str | None, high: int | str | None) -> None:
+    """Refuse a range given in whole pixels that leaves nothing to search: ``high`` below ``low``
+    (empty) or equal to it (one disparity: every pixel would get it, all "valid").
+    ``"auto"`` or None bounds are checked once resolved (:meth:`DisparityRange.check_for_width`)."""
+    if not (isinstance(low, int) and isinstance(high, int)):
+        return
+    if high < low:
+        raise CadeError(f"--max-disp {high} is below --min-disp {low}; raise --max-disp or lower --min-disp")
+    if high == low:
+        raise CadeError(f"--min-disp {low} and --max-disp {high} leave one disparity to search; give a --max-disp "
+                        f"above --min-disp (the scene's largest disparity, px) or a lower --min-disp")
+
+
 def resolve_range(
     left: np.ndarray, right: np.ndarray, *, min_disp: int | str = 0, max_disp: int | str | None = None
 ) -> tuple[DisparityRange, RangeEstimate | None]:

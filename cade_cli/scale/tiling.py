@@ -49,6 +49,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import NoReturn
 
 import numpy as np
@@ -167,6 +168,22 @@ def make_tile(rows: tuple[int, int], columns: tuple[int, int], shape: tuple[int,
     return Tile(rows, columns, window_rows, window_columns, DisparityRange(minimum, maximum), seeded)
 
 
+def seeded_tile(rows: tuple[int, int], columns: tuple[int, int], *, shape: tuple[int, int], whole: DisparityRange,
+                coarse, collar: int, alignment: int, method: str, model: str | None) -> Tile:
+    """The tile of a core (:func:`make_tile`), its range seeded from the ``coarse`` pass
+    (:func:`seeded_range`; ``whole`` when there is none or it is too thin there)."""
+    # Left of the range's maximum a pixel may have no match (x - d < 0), and its coarse
+    # estimate is then a confident mistake; a core there also seeds from the columns up
+    # to that maximum to its right, where every match exists (on session 16's 24 MP
+    # pair two such cores got [0, 107] for a truth of 272..296 px).
+    reach = collar + (max(whole.maximum, 0) if columns[0] < whole.maximum else 0)
+    context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + reach))
+    seeded = None if coarse is None else seeded_range(coarse, *context, whole)
+    chosen = seeded or whole
+    return make_tile(rows, columns, shape, chosen, seeded is not None, collar, alignment,
+                     search_reach(method, chosen, model))
+
+
 def plan_tiles(
     left: np.ndarray,
     right: np.ndarray,
@@ -225,17 +242,8 @@ def plan_tiles(
         except CadeError:
             pass
 
-    def tile_of(rows: tuple[int, int], columns: tuple[int, int]) -> Tile:
-        # Left of the range's maximum a pixel may have no match (x - d < 0), and its coarse
-        # estimate is then a confident mistake; a core there also seeds from the columns up
-        # to that maximum to its right, where every match exists (on session 16's 24 MP
-        # pair two such cores got [0, 107] for a truth of 272..296 px).
-        reach = collar + (max(whole.maximum, 0) if columns[0] < whole.maximum else 0)
-        context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + reach))
-        seeded = None if coarse is None else seeded_range(coarse, *context, whole)
-        chosen = seeded or whole
-        return make_tile(rows, columns, (height, width), chosen, seeded is not None, collar, alignment,
-                         search_reach(method, chosen, model))
+    tile_of = partial(seeded_tile, shape=(height, width), whole=whole, coarse=coarse, collar=collar,
+                      alignment=alignment, method=method, model=model)
 
     def cost(tile: Tile) -> tuple[int, int]:
         """(planned bytes, cost-volume bytes) of matching ``tile``."""
@@ -252,10 +260,19 @@ def plan_tiles(
         if all(fits(tile) for tile in tiles):
             return TilePlan(tuple(tiles), core, collar, memory_limit, max(cost(tile)[0] for tile in tiles))
         refuse(max(cost(tile)[0] for tile in tiles), core)
-    # A quadtree: a core whose tile does not fit is split in four (two when one side is
-    # already short), down to MIN_CORE; a tile's range is seeded from its own core, so
-    # where the scene's depth varies the tiles get smaller and their ranges narrower,
-    # and where it does not they stay large (less of each window is collar and range).
+    tiles = quadtree_tiles((height, width), tile_of, fits, lambda tile, side: refuse(cost(tile)[0], side))
+    return TilePlan(tuple(tiles), max(tile.side for tile in tiles), collar, memory_limit, max(cost(tile)[0] for tile in tiles))
+
+
+def quadtree_tiles(shape: tuple[int, int], tile_of: Callable[[tuple[int, int], tuple[int, int]], Tile],
+                   fits: Callable[[Tile], bool], refuse: Callable[[Tile, int], NoReturn]) -> list[Tile]:
+    """The tiles of a pair of ``shape`` (H, W), in row-major order of their cores. A quadtree: a
+    core whose tile (``tile_of(rows, columns)``) does not fit is split in four (two when one side
+    is already short), down to :data:`MIN_CORE`, where ``refuse(tile, side)`` is called; a tile's
+    range is seeded from its own core, so where the scene's depth varies the tiles get smaller
+    and their ranges narrower, and where it does not they stay large (less of each window is
+    collar and range)."""
+    height, width = shape
     tiles, pending = [], [((0, height), (0, width))]
     while pending:
         rows, columns = pending.pop()
@@ -265,10 +282,10 @@ def plan_tiles(
             continue
         halves = [split_span(rows), split_span(columns)]
         if len(halves[0]) == len(halves[1]) == 1:
-            refuse(cost(tile)[0], max(rows[1] - rows[0], columns[1] - columns[0]))
+            refuse(tile, max(rows[1] - rows[0], columns[1] - columns[0]))
         pending += [(r, c) for r in halves[0] for c in halves[1]]
     tiles.sort(key=lambda tile: (tile.core_rows, tile.core_columns))
-    return TilePlan(tuple(tiles), max(tile.side for tile in tiles), collar, memory_limit, max(cost(tile)[0] for tile in tiles))
+    return tiles
 
 
 def split_span(span: tuple[int, int]) -> list[tuple[int, int]]:

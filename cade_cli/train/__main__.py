@@ -1,4 +1,4 @@
-"""``python -m cade_cli.train fit|export|soup|...``: train CadeNet on generated CADE pairs, export ONNX."""
+"""``python -m cade_cli.train fit|export|soup|compact|...``: train CadeNet on generated CADE pairs, export ONNX."""
 
 from __future__ import annotations
 
@@ -220,7 +220,7 @@ def soup(
     """Average the weights of CHECKPOINTS of one design into one checkpoint (a uniform model soup)."""
     import torch
 
-    from cade_cli.train.fit import average_checkpoints
+    from cade_cli.train.checkpoints import average_checkpoints
 
     try:
         averaged = average_checkpoints(checkpoints)
@@ -229,6 +229,25 @@ def soup(
     out.parent.mkdir(parents=True, exist_ok=True)
     torch.save(averaged, out)
     print(f"wrote {out}: the mean of {len(checkpoints)} checkpoints")
+
+
+@app.command()
+def compact(
+    checkpoint: Annotated[Path, typer.Argument(exists=True, dir_okay=False, help="A run's last.pt (any form).")],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Where to write it (default: over CHECKPOINT, "
+                                             "atomically).")] = None,
+    weights_only: Annotated[bool, typer.Option(help="Keep the weights, config and step only: for a finished run "
+                                               "(export, soup, --init still read it; it cannot be resumed).")]
+    = False,
+) -> None:
+    """Rewrite CHECKPOINT compactly: the optimiser's moments in bfloat16 (it resumes as before), or
+    weights only; print its size before and after."""
+    from cade_cli.train.checkpoints import compact_checkpoint
+
+    target = out or checkpoint
+    before, after = compact_checkpoint(checkpoint, target, weights_only=weights_only)
+    form = "weights only" if weights_only else "compact"
+    print(f"{checkpoint}: {before / 1e6:.2f} MB -> {target}: {after / 1e6:.2f} MB ({form})")
 
 
 @app.command()

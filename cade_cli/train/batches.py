@@ -12,7 +12,8 @@ import torch
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
-from cade_cli.train.scenes import Misalignment, TexturePool, erased, render_scene
+from cade_cli.train.scenes import Misalignment, erased, render_scene
+from cade_cli.train.textures import TexturePool
 
 
 class GeneratedBatches(torch.utils.data.Dataset):

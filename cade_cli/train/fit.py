@@ -1,5 +1,5 @@
 """Training loop: generated CADE pairs (:mod:`~cade_cli.train.batches`) -> CadeNet, with CSV log,
-validation (:mod:`~cade_cli.train.validation`) and checkpoints.
+validation (:mod:`~cade_cli.train.validation`) and checkpoints (:mod:`~cade_cli.train.checkpoints`).
 
 Every batch is drawn from ``np.random.default_rng([seed, step])``, so a run resumed from
 a checkpoint sees exactly the batches the uninterrupted run would have seen.
@@ -10,7 +10,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -19,9 +18,9 @@ import torch
 import torch.nn.functional as F
 
 from cade_cli.train.batches import GeneratedBatches, parse_crop_schedule
+from cade_cli.train.checkpoints import restore, save_checkpoint
 from cade_cli.train.config import TrainConfig
-from cade_cli.train.model import adapt_state_dict, parameter_count, transferable
-from cade_cli.train.net2d import CadeNet2D, fewer_levels, with_more_levels
+from cade_cli.train.model import parameter_count
 from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES
 from cade_cli.train.validation import evaluate, validation_sets
@@ -122,26 +121,6 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     return checkpoint_path
 
 
-def restore(net: torch.nn.Module, optimizer, config: TrainConfig, checkpoint: Path | None) -> tuple[int, float, float]:
-    """Load the run's ``checkpoint`` when there is one (net, optimizer, random state), else
-    ``config.init``'s weights when given; returns (step, wall seconds, CPU seconds) so far."""
-    if checkpoint is not None and checkpoint.exists():
-        state = torch.load(checkpoint, map_location=config.device, weights_only=False)
-        net.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        torch.set_rng_state(state["torch_rng"])
-        return state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
-    if config.init:
-        initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]
-        if config.init_partial and isinstance(net, CadeNet2D) and fewer_levels(initial, net):
-            net.load_state_dict(with_more_levels(initial, net))
-        elif config.init_partial:
-            net.load_state_dict(transferable(initial, net), strict=False)
-        else:
-            net.load_state_dict(adapt_state_dict(initial, net))
-    return 0, 0.0, 0.0
-
-
 def open_log(path: Path, start: int):
     """The run's log, open for appending from step ``start`` (a new one with its header at step 0),
     and whether its rows carry the ``cpu_s`` column (logs begun before it keep their columns)."""
@@ -173,37 +152,3 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
         return None
     optimizer.step()
     return loss.item(), (out["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
-
-
-def save_checkpoint(path: Path, net, optimizer, step: int, elapsed: float, config: TrainConfig,
-                    cpu: float = 0.0) -> None:
-    """``elapsed``: wall-clock seconds of training so far; ``cpu``: CPU seconds of the training
-    process so far (all its threads; the data workers' only with ``workers`` 0)."""
-    temporary = path.with_name(path.name + ".tmp")
-    torch.save({"model": net.state_dict(), "optimizer": optimizer.state_dict(), "step": step, "elapsed_s": elapsed,
-                "cpu_s": cpu, "config": asdict(config), "torch_rng": torch.get_rng_state()}, temporary)
-    os.replace(temporary, path)
-
-
-def average_checkpoints(paths: list[Path]) -> dict:
-    """A checkpoint whose weights are the mean of ``paths``' (a uniform "model soup",
-    Wortsman et al., ICML 2022: fine-tunes of one initialisation average into one model);
-    BatchNorm's running statistics are averaged too, integer buffers taken from the first.
-    The result has the first checkpoint's config and step and no optimiser state (export it;
-    do not resume from it).
-
-    Raises:
-        ValueError: fewer than two checkpoints, or checkpoints of different designs.
-    """
-    if len(paths) < 2:
-        raise ValueError("a soup needs at least two checkpoints")
-    checkpoints = [torch.load(path, map_location="cpu", weights_only=False) for path in paths]
-    first = checkpoints[0]
-    for path, checkpoint in zip(paths[1:], checkpoints[1:]):
-        if checkpoint["model"].keys() != first["model"].keys() or any(
-                checkpoint["model"][key].shape != value.shape for key, value in first["model"].items()):
-            raise ValueError(f"{path} holds another design than {paths[0]}")
-    model = {key: (torch.stack([c["model"][key] for c in checkpoints]).mean(0) if value.is_floating_point() else value)
-             for key, value in first["model"].items()}
-    return {**first, "model": model, "optimizer": None, "soup_of": [str(path) for path in paths]}
-

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.io.checksum import file_sha256
-from cade_cli.train.scenes import TexturePool
+from cade_cli.train.textures import TexturePool
 
 CALIBRATION_SEED = 2 * 10**6
 """Seeds ``CALIBRATION_SEED + i`` draw the calibration pairs (training uses ``[seed, step]``,

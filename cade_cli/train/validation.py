@@ -14,7 +14,7 @@ from cade_cli.train.batches import generated_pair
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.model import DIVISOR
 from cade_cli.train.pairs import network_input_of
-from cade_cli.train.scenes import TexturePool
+from cade_cli.train.textures import TexturePool
 
 
 @torch.no_grad()
