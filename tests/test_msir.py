@@ -288,3 +288,23 @@ def test_msir_benchmark_records_name_the_dataset(msir_folder, shared_data, monke
     assert (record["dataset"], record["scene"], record["protocol"], record["task"]) == (
         "msir-outdoor", "cam5-cam2", "native", "grey")
     assert record["resolution"] == "1199x1600" and np.isfinite(record["scores"]["epe_all"])
+
+
+def test_training_validates_on_the_real_check_when_the_data_dir_holds_it(mini_msir, tmp_path):
+    """fit's validation rows gain ``msir-outdoor``: each task's VIS and NIR bands as the runtime
+    gives them to the network, at the size it matches them, against the task's pseudo ground truth;
+    a data dir without the array gives no such set."""
+    pytest.importorskip("torch")
+    from cade_cli.spectral import network_input
+    from cade_cli.train.validation import real_cross_spectral_set
+
+    pairs = real_cross_spectral_set(mini_msir.parent, "cade-floor", 184)
+    scenes = list(DATASETS["msir-outdoor"](mini_msir.parent))
+    assert len(pairs) == len(scenes) == 6
+    for (left, right, truth), scene in zip(pairs, scenes):
+        assert left.shape == right.shape == scene.left.shape[:2]
+        np.testing.assert_array_equal(left, network_input(scene.left[..., 0], "cade-floor"))
+        np.testing.assert_array_equal(right, network_input(scene.right[..., 0], "cade-floor"))
+        np.testing.assert_array_equal(truth, scene.disparity)
+    (tmp_path / "empty").mkdir()
+    assert real_cross_spectral_set(tmp_path / "empty", "cade-floor", 184) == []

@@ -38,7 +38,8 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     truth stays at the scene's resolution: :func:`evaluate` scores a downscaled scene's map
     brought back to it, in the scene's px, over all its pixels (until session 20 it scored it
     at the downscaled size, in those px: a 128-level network's Jadeplant, run at half size,
-    counted an eighth of what a 192-level network's did)."""
+    counted an eighth of what a 192-level network's did). With ``data_dir`` holding ``msir-outdoor``, the
+    set of that name: real visible/near-infrared pairs (:func:`real_cross_spectral_set`)."""
     import cv2
 
     from cade_cli.errors import CadeError
@@ -74,7 +75,35 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
             sets[f"{name}-cs"] = cross
             if rgb:
                 sets[f"{name}-rgb"] = same
+        real = real_cross_spectral_set(Path(config.data_dir), kind, config.levels - RANGE_MARGIN)
+        if real:
+            sets["msir-outdoor"] = real
     return sets
+
+
+def real_cross_spectral_set(data_dir: Path, kind: str, levels: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The real visible/near-infrared pairs of ``msir-outdoor`` (the shipping rule's real check,
+    docs/msir-outdoor.md) against their pseudo ground truth, at the size the runtime matches them
+    (full size: their range fits any network); empty when the data dir does not hold them. Building the pseudo ground truth
+    takes minutes the first time (then it is cached by the dataset)."""
+    import cv2
+
+    from cade_cli.data import get_dataset
+    from cade_cli.errors import CadeError
+    from cade_cli.matching.network import pyramid_factor
+    from cade_cli.spectral import network_input
+
+    try:
+        scenes = list(get_dataset("msir-outdoor")(data_dir))
+    except CadeError:
+        return []
+    pairs = []
+    for scene in scenes:
+        scale = pyramid_factor(scene.max_disp, levels)  # as the runtime does
+        size = (scene.left.shape[1] // scale, scene.left.shape[0] // scale)
+        left, right = (cv2.resize(view[..., 0], size, interpolation=cv2.INTER_AREA) for view in (scene.left, scene.right))
+        pairs.append((network_input(left, kind), network_input(right, kind), scene.disparity))
+    return pairs
 
 
 def at_truth_scale(disparity: np.ndarray, gt: np.ndarray) -> np.ndarray:
