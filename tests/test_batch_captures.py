@@ -14,7 +14,7 @@ import tifffile
 
 from capture_scenes import write_capture
 from cli_runner import run_cade
-from cade_cli.capture.flight import capture_name
+from cade_cli.capture.flight import capture_name, group_captures
 
 SIZE = (96, 72)
 IDS = {"IMG_0001": "FIRST", "IMG_0002": "SECOND", "IMG_0003": "THIRD"}
@@ -114,7 +114,8 @@ def test_panel_shots_are_skipped_with_a_note(flight, tmp_path, capsys):
 
 def test_a_broken_capture_fails_alone_and_the_log_says_why(flight, tmp_path, capsys):
     rng = np.random.default_rng(5)
-    write_capture(flight, rng, size=SIZE, name="IMG_0004", capture_id="NO_ROTATION", drop=("Red", "Camera:RigRelatives"))
+    write_capture(flight, rng, size=SIZE, name="IMG_0004", capture_id="NO_ROTATION",
+                  drop=("Red", "Camera:RigRelatives"))
     write_capture(flight, rng, size=SIZE, name="IMG_0005", capture_id="SHORT")
     (flight / "IMG_0005_5.tif").unlink()  # a band missing
     broken = flight / "IMG_0003_1.tif"
@@ -127,7 +128,7 @@ def test_a_broken_capture_fails_alone_and_the_log_says_why(flight, tmp_path, cap
         "captures"]}
     assert "IMG_0003_1.tif: cannot read its pixels" in errors["IMG_0003"]
     assert "IMG_0004_3.tif: no Camera:RigRelatives in its metadata" in errors["IMG_0004"]
-    assert errors["IMG_0005"].startswith("no Red edge band file")
+    assert errors["IMG_0005"].startswith("no Red edge band file: the flight's other MicaSense RedEdge-M captures")
     assert "warning: capture IMG_0004 failed" in err and err.strip().splitlines()[-1].startswith("cade: error: 3 of 5")
     assert not list(out.glob(".*tmp*"))  # nothing half-written
 
@@ -136,7 +137,8 @@ def test_flight_errors_are_one_line(flight, tmp_path, capsys):
     cases = [
         (["--captures", flight, "-o", tmp_path / "o", "--left", "a/*.png"], "--left belongs to a batch of pairs"),
         (["--captures", flight], "missing --output-dir"),
-        (["--left", "a", "--right", "b", "-o", tmp_path / "o", "--skip-panels"], "--skip-panels is an option of a flight"),
+        (["--left", "a", "--right", "b", "-o", tmp_path / "o", "--skip-panels"],
+         "--skip-panels is an option of a flight"),
         (["--captures", flight, "-o", tmp_path / "o", "--panel", "IMG_9"], "--panel IMG_9 names no capture"),
         (["--captures", flight, "-o", tmp_path / "o", "--dtype", "int8"], "unknown --dtype 'int8'"),
         (["--captures", tmp_path / "o2", "-o", tmp_path / "o"], "no capture found"),
@@ -154,3 +156,15 @@ def test_a_capture_is_named_by_the_name_most_of_its_files_share(tmp_path):
     sequoia = [f"IMG_180413_080658_0000_{band}.TIF" for band in ("GRE", "RED", "REG", "NIR")]
     assert capture_name([tmp_path / name for name in sequoia]) == "IMG_180413_080658_0000"
     assert capture_name([tmp_path / name for name in ("a_1.tif", "b_2.tif", "c_3.tif")]) is None
+
+
+def test_the_real_captures_are_grouped_by_their_ids(shared_data):
+    folder = shared_data / "micasense"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not found")
+    captures, notes = group_captures(folder)
+    assert not notes
+    found = {(str(capture.folder), capture.name): len(capture.paths) for capture in captures}
+    assert found == {("rededge-m-bench", "IMG_0001"): 5, ("rededge-m-bench", "IMG_0007"): 5,
+                     ("rededge-m-field", "IMG_0008"): 5, ("sequoia-tabletop", "IMG_180413_080658_0000"): 4}
+    assert all(capture.problem is None and not capture.panel for capture in captures)  # 4 bands: another camera

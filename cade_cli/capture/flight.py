@@ -68,8 +68,8 @@ def group_captures(folder: Path, *, skip: tuple[Path, ...] = ()) -> tuple[list[F
     """The captures of a flight folder, in the order of their first file, and a note for each
     TIFF that is not a band file (unreadable, no XMP band tags, no capture id).
 
-    A capture with fewer bands than the flight's other captures (the most common set of band
-    names) gets a ``problem`` naming the bands it lacks: its run fails alone.
+    A capture with fewer bands than the flight's other captures by the same camera (the most
+    common set of band names) gets a ``problem`` naming the bands it lacks: its run fails alone.
 
     Args:
         folder: the flight folder (subfolders included).
@@ -89,8 +89,9 @@ def group_captures(folder: Path, *, skip: tuple[Path, ...] = ()) -> tuple[list[F
             notes.append(f"{path.relative_to(folder)} skipped: no capture id in its metadata")
             continue
         groups[band.capture_id].append(band)
-    usual = collections.Counter(frozenset(band.name for band in bands) for bands in groups.values())
-    usual_bands = usual.most_common(1)[0][0] if usual else frozenset()
+    usual: dict[str, collections.Counter] = defaultdict(collections.Counter)  # per camera (make and model)
+    for bands in groups.values():
+        usual[bands[0].camera][frozenset(band.name for band in bands)] += 1
     captures, names = [], set()
     for capture_id, bands in groups.items():
         paths = [band.path for band in bands]
@@ -99,9 +100,10 @@ def group_captures(folder: Path, *, skip: tuple[Path, ...] = ()) -> tuple[list[F
         if (relative, name) in names:
             name = f"{name}_{capture_id}"
         names.add((relative, name))
+        usual_bands = usual[bands[0].camera].most_common(1)[0][0]
         missing = sorted(usual_bands - {band.name for band in bands})
-        problem = (f"no {', '.join(missing)} band file: the flight's other captures have {len(usual_bands)} bands "
-                   "(a file unreadable or moved? see the notes)") if missing else None
+        problem = (f"no {', '.join(missing)} band file: the flight's other {bands[0].camera} captures have "
+                   f"{len(usual_bands)} bands (a file unreadable or moved? see the notes)") if missing else None
         panel = any((band.calibration_picture or 0) > 0 for band in bands)
         captures.append(FlightCapture(name, relative, capture_id, tuple(paths), tuple(band.name for band in bands),
                                       panel, problem))

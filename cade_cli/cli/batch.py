@@ -23,7 +23,8 @@ def batch(
                                                 "shared names, by the last number in the names).")] = None,
     right: Annotated[Optional[str], typer.Option("--right", help="Glob pattern of the right images, quoted.")] = None,
     output_dir: Annotated[Optional[Path], typer.Option("--output-dir", "-o", help="With --left/--right: folder for "
-                                                       "the outputs, <left name>.<format> (created if missing).")] = None,
+                                                       "the outputs, <left name>.<format> (created if missing); with "
+                                                       "--captures, the cubes.")] = None,
     manifest: Annotated[Optional[Path], typer.Option("--manifest", help="CSV with a header row: left,right,output "
                                                      "and optionally min_disp,max_disp,left_band,right_band (empty = "
                                                      "the option's value); relative paths start at its folder.")] = None,
@@ -100,13 +101,14 @@ def batch(
                                               "with a note.")] = False,
     panel: Annotated[Optional[list[str]], typer.Option("--panel", help="With --captures: a capture (name or capture "
                                                        "id) that is a panel shot, for cameras that do not tag them "
-                                                       "(MicaSense); repeat it for several.", show_default=False)] = None,
+                                                       "(MicaSense); repeat it for several.", metavar="NAME",
+                                                       show_default=False)] = None,
 ) -> None:
     """Disparity of many pairs: resumable, one pair failing does not stop the others, on N processes or a Dask cluster.
 
     A rerun skips every pair whose outputs are verified (sha256 and options in the record
     beside each output, <output>.cade.json); --force redoes them. The exit status is 1 if
-    any pair failed.
+    any pair failed. With --captures: a drone flight, one registered cube per capture (docs/drone.md).
     """
     from contextlib import nullcontext
 
@@ -119,7 +121,8 @@ def batch(
     from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
 
     flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()))
-    check_flight_sources(captures, flight, {"--left": left, "--right": right, "--manifest": manifest, "--rig": rig_file})
+    check_flight_sources(captures, flight,
+                         {"--left": left, "--right": right, "--manifest": manifest, "--rig": rig_file})
     if captures is not None:
         return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,
                               engine=Engine(jobs, threads, scheduler, scheduler_file), progress_bar=_progress_bar)

@@ -84,7 +84,8 @@ def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArgume
     if engine.scheduler is not None and engine.scheduler_file is not None:
         raise CadeError("give --scheduler or --scheduler-file, not both")
     if engine.cluster and engine.jobs != 1:
-        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
+        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; "
+                        "drop --jobs")
     options = CaptureOptions(reference=flight.reference, method=method, model=model, plane_only=flight.plane_only,
                              dtype=flight.dtype, match_scale=flight.match_scale, vis=vis, ndvi=flight.ndvi)
     options.check()

@@ -21,7 +21,7 @@ options, and every output it lists is there with the sha256 it lists
 is renamed into place after the outputs, so an interruption between two renames leaves a
 pair that is simply redone.
 
-Engines (both run any job with :class:`Pair`'s protocol, a pair or a flight's capture, and yield results as they finish):
+Engines (both run any job with :class:`Pair`'s protocol, a pair or a flight's capture; results as jobs end):
 
 * :func:`run_local`: in this process (``jobs=1``) or in ``jobs`` worker processes, each
   running one pair at a time and keeping its network session (one per process, built on

@@ -68,7 +68,8 @@ class CaptureOptions:
             for name in ("method", "model", "match_scale"):
                 del options[name]
         elif self.method in LEARNED_METHODS:
-            options["model_sha256"] = sorted(variant.sha256 for variant in read_card(self.model or DEFAULT_MODEL).variants)
+            card = read_card(self.model or DEFAULT_MODEL)
+            options["model_sha256"] = sorted(variant.sha256 for variant in card.variants)
         return options
 
 
