@@ -168,3 +168,19 @@ def test_the_real_captures_are_grouped_by_their_ids(shared_data):
     assert found == {("rededge-m-bench", "IMG_0001"): 5, ("rededge-m-bench", "IMG_0007"): 5,
                      ("rededge-m-field", "IMG_0008"): 5, ("sequoia-tabletop", "IMG_180413_080658_0000"): 4}
     assert all(capture.problem is None and not capture.panel for capture in captures)  # 4 bands: another camera
+
+
+def test_jobs_are_lowered_to_what_the_largest_capture_leaves_room_for(flight, tmp_path, capsys, monkeypatch):
+    from cade_cli.scale import batch
+    from cade_cli.scale.batch_captures import (CAPTURE_MATCHING_BYTES, CAPTURE_PIXEL_BYTES, CaptureJob,
+                                               capture_memory_bytes)
+
+    small = CaptureJob("a", tuple(sorted(flight.glob("IMG_0001_*.tif"))), tmp_path / "a.tif")
+    size, planned = capture_memory_bytes([small])
+    assert size == f"5 bands of {SIZE[0]}x{SIZE[1]}"
+    assert planned == batch.BASE_BYTES + CAPTURE_MATCHING_BYTES + CAPTURE_PIXEL_BYTES * 5 * SIZE[0] * SIZE[1]
+    monkeypatch.setattr(batch, "available_memory_bytes", lambda: int(1.5 * planned / batch.MEMORY_HEADROOM))
+    code, stdout, err = run_cade(["batch", "--captures", flight, "-o", tmp_path / "o", "--plane-only", "--jobs", "2"],
+                                 capsys)
+    assert code == 0 and "--jobs 2 lowered to 1: the largest capture, 5 bands of 96x72" in err
+    assert "1 local job(s)" in stdout
