@@ -112,17 +112,15 @@ def batch(
     """
     from contextlib import nullcontext
 
+    from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_output
     from cade_cli.scale.batch import BatchSummary, check_output_ranges, log_document, run_dask, run_local
     from cade_cli.scale.batch_job import remove_stale_temporaries
     from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
 
-    from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
-
     flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()))
-    check_flight_sources(captures, flight,
-                         {"--left": left, "--right": right, "--manifest": manifest, "--rig": rig_file})
+    check_flight_sources(captures, flight, left=left, right=right, manifest=manifest, rig=rig_file)
     if captures is not None:
         return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,
                               engine=Engine(jobs, threads, scheduler, scheduler_file), progress_bar=_progress_bar)

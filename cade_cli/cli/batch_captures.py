@@ -50,7 +50,7 @@ class Engine:
         return f"dask {self.scheduler or self.scheduler_file}" if self.cluster else f"{self.jobs} local job(s)"
 
 
-def check_flight_sources(captures: Path | None, flight: FlightArguments, pair_sources: dict[str, object]) -> None:
+def check_flight_sources(captures: Path | None, flight: FlightArguments, **pair_sources: object) -> None:
     """Refuse pair sources (``--left``, ``--manifest``, ``--rig`` ...) given with ``--captures``,
     and a flight's options given without it."""
     from cade_cli.errors import CadeError
@@ -60,7 +60,7 @@ def check_flight_sources(captures: Path | None, flight: FlightArguments, pair_so
         if given:
             raise CadeError(f"{given[0]} is an option of a flight's batch; add --captures FLIGHT_FOLDER or drop it")
         return
-    given = [name for name, value in pair_sources.items() if value is not None]
+    given = [f"--{name}" for name, value in pair_sources.items() if value is not None]
     if given:
         raise CadeError(f"{given[0]} belongs to a batch of pairs; --captures takes a flight's band files: drop one")
 
