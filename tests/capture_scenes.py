@@ -130,8 +130,9 @@ RESPONSES = {"Blue": lambda t: 0.2 + 0.5 * t**1.3, "Green": lambda t: 0.1 + 0.8 
 """Each band's response to the ground's texture (NIR inverted: a cross-spectral capture)."""
 
 
-def xmp(camera: BandCamera, *, capture_id: str, drop: str | None = None) -> bytes:
-    """An XMP packet in MicaSense's element form; ``drop``: a tag left out."""
+def xmp(camera: BandCamera, *, capture_id: str, drop: str | None = None, panel: bool = False) -> bytes:
+    """An XMP packet in MicaSense's element form; ``drop``: a tag left out; ``panel``: tagged as a
+    calibration target (``Camera:CalibrationPicture`` 2, as Pix4D documents it)."""
     f_mm = camera.focal / PIXELS_PER_MM
     cx, cy = (c / PIXELS_PER_MM for c in camera.centre)
     seq = "".join(f"<rdf:li>{value!r}</rdf:li>" for value in camera.dist)
@@ -143,6 +144,8 @@ def xmp(camera: BandCamera, *, capture_id: str, drop: str | None = None) -> byte
         "Camera:RigRelatives": ", ".join(repr(a) for a in camera.angles), "Camera:RigCameraIndex": str(camera.index),
         "MicaSense:CaptureId": capture_id,
     }
+    if panel:
+        fields["Camera:CalibrationPicture"] = "2"
     body = "".join(f"<{key}>{value}</{key}>" for key, value in fields.items() if key != drop)
     return ('<?xpacket begin="" id="W5M0MpCehiHzreSzNTczkc9d"?><x:xmpmeta xmlns:x="adobe:ns:meta/">'
             '<rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#"><rdf:Description rdf:about="" '
@@ -160,8 +163,9 @@ class SyntheticCapture:
 
 def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, int] = (320, 240), depth: float = 1.5,
                   hill: float = 0.3, drop: tuple[str, str] | None = None, saturate: bool = False,
-                  name: str = "IMG_0001", capture_id: str = "SYNTHETIC01") -> SyntheticCapture:
-    """Render and write ``<name>_{1..5}.tif`` in ``folder``; ``drop`` = (band, tag) leaves a tag out."""
+                  name: str = "IMG_0001", capture_id: str = "SYNTHETIC01", panel: bool = False) -> SyntheticCapture:
+    """Render and write ``<name>_{1..5}.tif`` in ``folder``; ``drop`` = (band, tag) leaves a tag out;
+    ``panel`` tags the files as a calibration panel shot."""
     folder.mkdir(parents=True, exist_ok=True)
     width, height = size
     terrain = make_terrain(rng, depth=depth, hill=hill)
@@ -182,7 +186,7 @@ def write_capture(folder: Path, rng: np.random.Generator, *, size: tuple[int, in
         truth[camera.name] = tuple(project(camera, ground).T.reshape(2, height, width))
         path = folder / f"{name}_{number}.tif"
         tags = [(700, "B", 0, xmp(camera, capture_id=capture_id, drop=drop[1] if drop and drop[0] == camera.name
-                                   else None), True),
+                                   else None, panel=panel), True),
                 (271, "s", 0, "MicaSense", True), (272, "s", 0, "RedEdge-M", True),
                 (37390, "2I", 1, (266666667, 1000000), True), (37392, "H", 1, 4, True),
                 (50714, "H", 4, (BLACK_LEVEL,) * 4, True)]

@@ -51,12 +51,14 @@ def test_every_real_band_file_is_read(shared_data):
                 assert band.black_level == 4800
                 assert isinstance(band.lens, BrownLens) and 1400 < band.lens.focal < 1470
                 assert np.allclose(band.rotation @ band.rotation.T, np.eye(3))
+                assert band.calibration_picture is None  # MicaSense tags no panel shot
             assert np.allclose(bands[1].rotation, np.eye(3))  # Green is the rig reference
     for path in sorted((folder / "sequoia-tabletop").glob("*.TIF")):
         band = read_band_file(path)
         assert (band.name, band.wavelength, band.rig_index) == SEQUOIA_BANDS[path.stem.split("_")[-1]]
         assert isinstance(band.lens, FisheyeLens) and 1050 < band.lens.focal < 1070
         assert 4900 < band.black_level < 5800
+        assert band.calibration_picture == 0  # Camera:CalibrationPicture="0": not a panel shot
     capture = load_capture(sorted((folder / "sequoia-tabletop").glob("*.TIF")))
     assert capture.reference_band.name == "Green" and capture.names() == ["Green", "Red", "Red edge", "NIR"]
     _, (width, height) = capture.frame  # the fisheye's corners, undistorted, reach beyond the raw size
@@ -198,19 +200,3 @@ def test_only_small_unmatched_areas_count_as_seen():
     trusted[50:90, 20:80] = False  # 2400 px: 24 %
     holes = small_holes(trusted, share=0.002)
     assert holes[10:13, 10:13].all() and not holes[50:90, 20:80].any() and not holes[trusted].any()
-
-
-def test_a_flight_folder_is_grouped_by_capture_id_and_resumes(tmp_path, rng, capsys):
-    flight = tmp_path / "flight"
-    write_capture(flight / "000", rng, size=(96, 72), name="IMG_0001", capture_id="FIRST")
-    write_capture(flight / "000", rng, size=(96, 72), name="IMG_0002", capture_id="SECOND")
-    tifffile.imwrite(flight / "000" / "notes.tif", np.zeros((4, 4), np.uint8))  # not a band file
-    (flight / "000" / "IMG_0002_3.tif").rename(flight / "000" / "renamed.tif")  # grouped by id, not by name
-    out = tmp_path / "cubes"
-    code, _, err = run_cade(["register-flight", flight, "-o", out, "--plane-only"], capsys)
-    assert code == 0, err
-    assert "notes.tif skipped" in err and "2 captures: 2 written, 0 already there, 0 failed" in err
-    assert sorted(p.name for p in (out / "000").iterdir()) == ["IMG_0001.tif", "SECOND.tif"]  # no common name
-    assert all(tifffile.imread(p).shape == (5, 72, 96) for p in (out / "000").iterdir())
-    code, _, err = run_cade(["register-flight", flight, "-o", out, "--plane-only"], capsys)
-    assert code == 0 and "0 written, 2 already there" in err

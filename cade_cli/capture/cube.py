@@ -191,3 +191,19 @@ def ndvi_picture(registration: CaptureRegistration) -> np.ndarray:
         ndvi = np.where((a + b) > 0, (a - b) / (a + b), np.nan)
     bar = ColourBar(cv2.COLORMAP_TURBO, -1.0, 1.0, "NDVI of raw signals above black level (not reflectance)")
     return scaled_picture(ndvi, bar, swatches=[Swatch((0, 0, 0), "band not seen or saturated")])
+
+
+def write_registration(registration: CaptureRegistration, *, cube: Path, dtype: str = "float32",
+                       mask: Path | None = None, per_band: Path | None = None, vis: Path | None = None,
+                       ndvi: Path | None = None) -> None:
+    """Every file of one registered capture to the paths given (the stand-ins of
+    :func:`cade_cli.io.atomic.atomic_outputs`, which the caller renames): the cube, the uint16
+    cube's ``mask``, the ``per_band`` folder's files, the false-colour and NDVI pictures
+    (None: not written)."""
+    write_cube(cube, registration, dtype=dtype, mask=mask)
+    if per_band is not None:
+        write_per_band(per_band, registration, dtype=dtype)
+    if vis is not None:
+        cv2.imwrite(str(vis), false_colour_picture(registration))
+    if ndvi is not None:
+        cv2.imwrite(str(ndvi), ndvi_picture(registration))

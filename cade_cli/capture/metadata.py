@@ -92,6 +92,9 @@ class BandFile:
         rotation: (3, 3) rotation of this camera relative to the rig reference (Green),
             ``X_band = rotation @ X_reference``; None when the file gives none.
         black_level: mean of the DNG ``BlackLevel`` values (tag 50714), raw units; 0 when absent.
+        calibration_picture: ``Camera:CalibrationPicture`` (Pix4D's tag, written by the
+            Sequoia): 0 an ordinary shot, 1 or 2 a radiometric calibration target (a panel);
+            None when absent (MicaSense RedEdge files do not carry it).
     """
 
     path: Path
@@ -105,6 +108,7 @@ class BandFile:
     lens: Lens | None
     rotation: np.ndarray | None
     black_level: float
+    calibration_picture: int | None = None
 
 
 class _Fields:
@@ -222,5 +226,7 @@ def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
     black = tags.get(50714)
     black_level = float(np.mean(black)) if black is not None else 0.0
     camera = f"{str(tags.get(271, '')).strip()} {str(tags.get(272, '')).strip()}".strip()
+    calibration = text_of(xmp.get("Camera:CalibrationPicture", "")).strip()
     return BandFile(path, name, wavelength, fwhm, rig_index, text_of(capture_id) if capture_id else None,
-                    camera, (int(shape[1]), int(shape[0])), lens, rotation, black_level)
+                    camera, (int(shape[1]), int(shape[0])), lens, rotation, black_level,
+                    int(calibration) if calibration.isdigit() else None)

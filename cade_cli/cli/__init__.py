@@ -28,7 +28,6 @@ app.add_typer(benchmark.datasets_app, name="datasets")
 app.command("register-array")(rigs.register_array)
 app.command("array-score")(rigs.array_score)
 app.command("register-capture")(capture.register_capture)
-app.command("register-flight")(capture.register_flight)
 app.command()(batch.batch)
 
 

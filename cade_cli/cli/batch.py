@@ -23,7 +23,8 @@ def batch(
                                                 "shared names, by the last number in the names).")] = None,
     right: Annotated[Optional[str], typer.Option("--right", help="Glob pattern of the right images, quoted.")] = None,
     output_dir: Annotated[Optional[Path], typer.Option("--output-dir", "-o", help="With --left/--right: folder for "
-                                                       "the outputs, <left name>.<format> (created if missing).")] = None,
+                                                       "the outputs, <left name>.<format> (created if missing); with "
+                                                       "--captures, the cubes.")] = None,
     manifest: Annotated[Optional[Path], typer.Option("--manifest", help="CSV with a header row: left,right,output "
                                                      "and optionally min_disp,max_disp,left_band,right_band (empty = "
                                                      "the option's value); relative paths start at its folder.")] = None,
@@ -81,21 +82,48 @@ def batch(
     force: Annotated[bool, typer.Option("--force", help="Redo every pair, even those verified as finished.")] = False,
     log: Annotated[Optional[Path], typer.Option("--log", help="JSON log of the run (default: cade-batch-log.json in "
                                                 "--output-dir, or <manifest>.log.json).")] = None,
+    captures: Annotated[Optional[Path], typer.Option("--captures", help="A drone flight's folder of band files "
+                                                     "instead of pairs: one cube per capture (grouped by the capture "
+                                                     "id in the metadata) in --output-dir, as register-capture writes "
+                                                     "it; --vis adds its false-colour picture (docs/drone.md).",
+                                                     file_okay=False, show_default=False)] = None,
+    reference: Annotated[Optional[str], typer.Option("--reference", help="With --captures: the reference band "
+                                                     "(default: Green).", show_default=False)] = None,
+    plane_only: Annotated[bool, typer.Option("--plane-only", help="With --captures: one homography per band, no "
+                                             "parallax.")] = False,
+    dtype: Annotated[str, typer.Option("--dtype", help="With --captures: float32, or uint16 with a .valid.tif mask "
+                                       "beside each cube.")] = "float32",
+    ndvi: Annotated[bool, typer.Option("--ndvi", help="With --captures: also write <name>_ndvi.png.")] = False,
+    match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="With --captures: dense "
+                                               "matching at this fraction of the resolution.")] = 0.5,
+    skip_panels: Annotated[bool, typer.Option("--skip-panels", help="With --captures: leave out the calibration "
+                                              "panel shots (tagged Camera:CalibrationPicture, or named by --panel), "
+                                              "with a note.")] = False,
+    panel: Annotated[Optional[list[str]], typer.Option("--panel", help="With --captures: a capture (name or capture "
+                                                       "id) that is a panel shot, for cameras that do not tag them "
+                                                       "(MicaSense); repeat it for several.", metavar="NAME",
+                                                       show_default=False)] = None,
 ) -> None:
     """Disparity of many pairs: resumable, one pair failing does not stop the others, on N processes or a Dask cluster.
 
     A rerun skips every pair whose outputs are verified (sha256 and options in the record
     beside each output, <output>.cade.json); --force redoes them. The exit status is 1 if
-    any pair failed.
+    any pair failed. With --captures: a drone flight, one registered cube per capture (docs/drone.md).
     """
     from contextlib import nullcontext
 
+    from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_output
     from cade_cli.scale.batch import BatchSummary, check_output_ranges, log_document, run_dask, run_local
     from cade_cli.scale.batch_job import remove_stale_temporaries
     from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
 
+    flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()))
+    check_flight_sources(captures, flight, left=left, right=right, manifest=manifest, rig=rig_file)
+    if captures is not None:
+        return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,
+                              engine=Engine(jobs, threads, scheduler, scheduler_file), progress_bar=_progress_bar)
     by_pattern = (left, right, output_dir)
     _check_sources(manifest, by_pattern, scheduler, scheduler_file, jobs)
     cluster = scheduler is not None or scheduler_file is not None

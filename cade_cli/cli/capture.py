@@ -106,80 +106,10 @@ def register_capture(
 def _write_outputs(registration, output: Path, *, mask: Path | None, per_band: Path | None, vis: Path | None,
                    ndvi: Path | None, dtype: str) -> None:
     """Every file of one registered capture, all at once or none (:mod:`cade_cli.io.atomic`)."""
-    import cv2
-
-    from cade_cli.capture.cube import false_colour_picture, ndvi_picture, write_cube, write_per_band
+    from cade_cli.capture.cube import write_registration
     from cade_cli.io.atomic import atomic_outputs
 
     with atomic_outputs([output, mask, vis, ndvi], folders=[per_band]) as staged:
-        write_cube(staged[output], registration, dtype=dtype, mask=None if mask is None else staged[mask])
-        if per_band is not None:
-            write_per_band(staged[per_band], registration, dtype=dtype)
-        if vis is not None:
-            cv2.imwrite(str(staged[vis]), false_colour_picture(registration))
-        if ndvi is not None:
-            cv2.imwrite(str(staged[ndvi]), ndvi_picture(registration))
-
-
-def register_flight(
-    folder: Annotated[Path, typer.Argument(metavar="FLIGHT_FOLDER", help="A folder of band files (subfolders "
-                                           "included), grouped into captures by the capture id in their "
-                                           "metadata.", exists=True, file_okay=False, show_default=False)],
-    output_dir: Annotated[Path, typer.Option("--output-dir", "-o", help="Folder for the cubes: <subfolder>/<capture "
-                                             "name>.tif (as register-capture -o); a cube already there is kept "
-                                             "(the run resumes).", file_okay=False, show_default=False)],
-    reference: Annotated[Optional[str], typer.Option("--reference", help="Reference band's name (default: Green).",
-                                                     show_default=False)] = None,
-    method: MethodOption = DEFAULT_METHOD,
-    model: ModelOption = None,
-    plane_only: Annotated[bool, typer.Option("--plane-only", help="One homography per band, no parallax.")] = False,
-    dtype: Annotated[str, typer.Option("--dtype", help="float32 or uint16 (with a .valid.tif mask beside each "
-                                       "cube), as register-capture.")] = "float32",
-    match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Dense matching at this "
-                                               "fraction of the resolution.")] = 0.5,
-) -> None:
-    """Register every capture of a drone flight folder, one cube per capture (resumable; sequential)."""
-    from cade_cli.capture.cube import DTYPES, mask_path, write_cube
-    from cade_cli.capture.flight import group_captures
-    from cade_cli.capture.model import load_capture
-    from cade_cli.capture.register import register_capture as register
-    from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.matching import get_matcher
-
-    if dtype not in DTYPES:
-        raise CadeError(f"unknown --dtype {dtype!r}; choose one of {', '.join(DTYPES)}")
-    if not plane_only:
-        get_matcher(method)
-    captures, notes = group_captures(folder, skip=(output_dir,))
-    for note in notes:
-        print_note(note)
-    if not captures:
-        raise CadeError(f"no capture found in {folder}: no TIFF there carries a band name and a capture id in its XMP")
-    written, kept, failed, seconds = 0, 0, [], 0.0
-    with StepBar(len(captures), "registering captures") as bar:
-        for flight_capture in captures:
-            output = flight_capture.output(output_dir)
-            if output.exists():
-                kept += 1
-                bar.advance(f"{flight_capture.name} already there")
-                continue
-            try:
-                output.parent.mkdir(parents=True, exist_ok=True)
-                capture = load_capture(flight_capture.paths, reference=reference)
-                registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model)
-                mask = mask_path(output) if dtype == "uint16" else None
-                with atomic_outputs([output, mask]) as staged:
-                    write_cube(staged[output], registration, dtype=dtype, mask=None if mask is None else staged[mask])
-                written += 1
-                seconds += registration.seconds
-            except (CadeError, OSError) as error:
-                failed.append(f"{flight_capture.name}: {str(error).splitlines()[0]}")
-            bar.advance(f"{flight_capture.name} done")
-    for failure in failed:
-        print(f"warning: {failure}", file=sys.stderr)
-    mean = f"; {seconds / written:.1f} s per capture" if written else ""
-    print(f"{output_dir}: {len(captures)} captures: {written} written, {kept} already there, {len(failed)} failed"
-          f"{mean}", file=sys.stderr)
-    if failed:
-        raise CadeError(f"{len(failed)} of {len(captures)} captures failed (first: {failed[0]}); the others are written")
+        write_registration(registration, cube=staged[output], dtype=dtype,
+                           **{name: None if path is None else staged[path]
+                              for name, path in (("mask", mask), ("per_band", per_band), ("vis", vis), ("ndvi", ndvi))})

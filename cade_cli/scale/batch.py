@@ -22,7 +22,7 @@ options, and every output it lists is there with the sha256 it lists
 is renamed into place after the outputs, so an interruption between two renames leaves a
 pair that is simply redone.
 
-Engines (both yield :class:`PairResult` as pairs finish):
+Engines (both run any job with :class:`Pair`'s protocol, a pair or a flight's capture; results as jobs end):
 
 * :func:`run_local`: in this process (``jobs=1``) or in ``jobs`` worker processes, each
   running one pair at a time and keeping its network session (one per process, built on
@@ -54,7 +54,7 @@ from pathlib import Path
 from cade_cli.allocator import retain_freed_memory
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
-from cade_cli.scale.batch_job import remove_stale_temporaries, run_pair
+from cade_cli.scale.batch_job import remove_stale_temporaries, run_job
 from cade_cli.scale.batch_log import BatchSummary, log_document  # noqa: F401  (cade batch imports them from here)
 from cade_cli.scale.batch_pairs import Pair, PairResult, worker_name
 from cade_cli.scale.memory import BASE_BYTES, available_memory_bytes, matching_memory_bytes
@@ -179,13 +179,13 @@ def _attempt(pair: Pair) -> PairResult:
     """:func:`run_pair`, its unexpected errors turned into a failed result after :data:`ATTEMPTS` runs."""
     for attempt in range(1, ATTEMPTS + 1):
         try:
-            return replace(run_pair(pair), attempts=attempt)
+            return replace(run_job(pair), attempts=attempt)
         except (KeyboardInterrupt, SystemExit):
             raise
         except Exception as error:  # noqa: BLE001 - reported for this pair, the batch goes on
             if attempt == ATTEMPTS:
-                return PairResult.failure(pair, f"{type(error).__name__}: {error}".splitlines()[0],
-                                          attempts=attempt, worker=worker_name())
+                return pair.failure(f"{type(error).__name__}: {error}".splitlines()[0], attempts=attempt,
+                                    worker=worker_name())
     raise AssertionError("unreachable")
 
 
@@ -199,7 +199,7 @@ def _worker_main(connection, threads: int | None) -> None:
         while (item := connection.recv()) is not None:
             index, pair = item
             try:
-                connection.send((index, run_pair(pair), None))
+                connection.send((index, run_job(pair), None))
             except Exception as error:  # noqa: BLE001 - reported for this pair, the worker goes on
                 connection.send((index, None, f"{type(error).__name__}: {error}".splitlines()[0]))
     except (KeyboardInterrupt, EOFError, BrokenPipeError):
@@ -319,7 +319,7 @@ def _retry_or_fail(index: int, pair: Pair, error: str, attempts: collections.Cou
     if attempts[index] < ATTEMPTS:
         waiting.appendleft((index, pair))
         return None
-    return PairResult.failure(pair, error, attempts=attempts[index])
+    return pair.failure(error, attempts=attempts[index])
 
 
 def run_dask(pairs: Sequence[Pair], *, address: str | None = None, scheduler_file: Path | None = None,
@@ -359,8 +359,8 @@ def run_dask(pairs: Sequence[Pair], *, address: str | None = None, scheduler_fil
             client.run(_start_worker, threads)
         token = f"{os.getpid()}-{time.time_ns()}"
         for index, pair in enumerate(pairs):  # the workers' current folder is not ours: absolute paths
-            pair = replace(pair, left=pair.left.absolute(), right=pair.right.absolute(), output=pair.output.absolute())
-            future = client.submit(run_pair, pair, key=f"cade-pair-{token}-{index}", pure=False,
+            pair = pair.absolute()
+            future = client.submit(run_job, pair, key=f"cade-pair-{token}-{index}", pure=False,
                                    retries=ATTEMPTS - 1)
             futures[future] = pair
         for future in as_completed(futures):
@@ -368,7 +368,7 @@ def run_dask(pairs: Sequence[Pair], *, address: str | None = None, scheduler_fil
             try:
                 yield future.result()
             except Exception as exc:  # noqa: BLE001 - reported for this pair, the batch goes on
-                yield PairResult.failure(pair, f"{type(exc).__name__}: {exc}".splitlines()[0], attempts=ATTEMPTS)
+                yield pair.failure(f"{type(exc).__name__}: {exc}".splitlines()[0], attempts=ATTEMPTS)
     finally:
         client.cancel(list(futures))
         if own:

@@ -17,7 +17,7 @@ from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs, intended_path
 from cade_cli.io.disparity import check_disparity_range
 from cade_cli.io.checksum import file_sha256
-from cade_cli.scale.batch_pairs import Pair, PairOptions, PairResult, expected_record, peak_rss_mb, worker_name
+from cade_cli.scale.batch_pairs import Pair, PairOptions, PairResult, expected_record, worker_name
 from cade_cli.scale.range import AUTO, RangeEstimate
 
 
@@ -35,6 +35,19 @@ def remove_stale_temporaries(pairs: Iterable[Pair]) -> int:
                     candidate.unlink(missing_ok=True)
                     removed += 1
     return removed
+
+
+def run_job(job):
+    """Run one job of a batch: a :class:`Pair` by :func:`run_pair`, anything else (a flight's capture) by
+    its ``run()``; the task every engine's worker runs."""
+    return run_pair(job) if isinstance(job, Pair) else job.run()
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far, MiB (Linux reports KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def run_pair(pair: Pair) -> PairResult:

@@ -31,13 +31,13 @@ class BatchSummary:
         return 60.0 * self.done / self.seconds if self.seconds > 0 else 0.0
 
 
-def log_document(results: Sequence[PairResult], summary: BatchSummary, *, config: dict) -> str:
-    """The JSON log of a batch: its configuration, summary and one entry per pair."""
+def log_document(results: Sequence[PairResult], summary: BatchSummary, *, config: dict, entries: str = "pairs") -> str:
+    """The JSON log of a batch: its configuration, summary and one entry per job, under ``entries``."""
     return json.dumps({
         "cade_version": __version__,
         "finished_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "config": config,
         "summary": {**asdict(summary), "pairs_per_minute": summary.pairs_per_minute},
-        "pairs": [{key: value for key, value in asdict(result).items() if value not in (None, (), {})}
+        entries: [{key: value for key, value in asdict(result).items() if value not in (None, (), {})}
                   for result in results],
     }, indent=1) + "\n"

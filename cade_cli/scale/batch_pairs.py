@@ -159,6 +159,13 @@ class Pair:
         """The pair's record file."""
         return self.output.with_name(self.output.name + RECORD_SUFFIX)
 
+    def failure(self, error: str, *, attempts: int, worker: str | None = None) -> "PairResult":
+        """The engines' job protocol (cade_cli.scale.batch, run by batch_job.run_job): failure, absolute."""
+        return PairResult.failure(self, error, attempts=attempts, worker=worker)
+
+    def absolute(self) -> "Pair":
+        return replace(self, left=self.left.absolute(), right=self.right.absolute(), output=self.output.absolute())
+
 
 @dataclass(frozen=True)
 class PairResult:
@@ -387,10 +394,3 @@ def skipped_result(pair: Pair) -> PairResult:
 
 def worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
-
-
-def peak_rss_mb() -> float:
-    """This process's peak resident memory so far, MiB (Linux reports KiB)."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -1,0 +1,175 @@
+"""``cade batch --captures FLIGHT``: a drone flight's captures registered into one cube each, on the
+engines of the pair batch (worker processes or a Dask cluster), resumable (docs/drone.md, "A whole flight").
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from cade_cli.cli.options import print_note, print_warning
+
+
+@dataclass(frozen=True)
+class FlightArguments:
+    """The options of ``cade batch`` that only a flight takes (register-capture's, and the panels')."""
+
+    reference: str | None = None
+    plane_only: bool = False
+    dtype: str = "float32"
+    ndvi: bool = False
+    match_scale: float = 0.5
+    skip_panels: bool = False
+    panels: tuple[str, ...] = ()
+
+    def given(self) -> list[str]:
+        """The options given a value other than their default, as the user writes them."""
+        return [f"--{name.replace('_', '-')}".replace("--panels", "--panel") for name, value in vars(self).items()
+                if value != getattr(FlightArguments, name)]
+
+
+@dataclass(frozen=True)
+class Engine:
+    """Where the jobs run: ``jobs`` local processes with ``threads`` each, or a Dask scheduler."""
+
+    jobs: int = 1
+    threads: int | None = None
+    scheduler: str | None = None
+    scheduler_file: Path | None = None
+
+    @property
+    def cluster(self) -> bool:
+        return self.scheduler is not None or self.scheduler_file is not None
+
+    @property
+    def name(self) -> str:
+        return f"dask {self.scheduler or self.scheduler_file}" if self.cluster else f"{self.jobs} local job(s)"
+
+
+def check_flight_sources(captures: Path | None, flight: FlightArguments, **pair_sources: object) -> None:
+    """Refuse pair sources (``--left``, ``--manifest``, ``--rig`` ...) given with ``--captures``,
+    and a flight's options given without it."""
+    from cade_cli.errors import CadeError
+
+    if captures is None:
+        given = flight.given()
+        if given:
+            raise CadeError(f"{given[0]} is an option of a flight's batch; add --captures FLIGHT_FOLDER or drop it")
+        return
+    given = [f"--{name}" for name, value in pair_sources.items() if value is not None]
+    if given:
+        raise CadeError(f"{given[0]} belongs to a batch of pairs; --captures takes a flight's band files: drop one")
+
+
+def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArguments, *, method: str,
+                   model: str | None, vis: bool, engine: Engine, force: bool, log: Path | None,
+                   progress_bar: Callable) -> None:
+    """Register every capture of the flight folder ``captures`` into ``output_dir``, one cube each.
+
+    A capture whose cube and record are verified (:func:`cade_cli.scale.batch_captures.is_finished`)
+    is skipped unless ``force``; the others run on ``engine`` (:func:`cade_cli.scale.batch.run_local`
+    or :func:`~cade_cli.scale.batch.run_dask`); ``progress_bar()`` makes the bar the pair batch shows.
+    """
+    from cade_cli.cli.options import check_output
+    from cade_cli.errors import CadeError
+    from cade_cli.scale.batch_captures import CaptureOptions, flight_jobs, is_finished, skipped_result
+    from cade_cli.scale.batch_job import remove_stale_temporaries
+
+    if output_dir is None:
+        raise CadeError("missing --output-dir: give --captures FLIGHT_FOLDER --output-dir CUBES")
+    if engine.scheduler is not None and engine.scheduler_file is not None:
+        raise CadeError("give --scheduler or --scheduler-file, not both")
+    if engine.cluster and engine.jobs != 1:
+        raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; "
+                        "drop --jobs")
+    options = CaptureOptions(reference=flight.reference, method=method, model=model, plane_only=flight.plane_only,
+                             dtype=flight.dtype, match_scale=flight.match_scale, vis=vis, ndvi=flight.ndvi)
+    options.check()
+    if output_dir.exists() and not output_dir.is_dir():
+        raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
+    jobs, notes = flight_jobs(captures, output_dir, options, skip_panels=flight.skip_panels, panels=flight.panels)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    log = output_dir / "cade-batch-log.json" if log is None else log
+    check_output(log, suffixes=(".json",), inputs=())
+    for note in notes:
+        print_note(note)
+    remove_stale_temporaries(jobs)  # left by a run that was killed
+    results = [] if force else [skipped_result(job) for job in jobs if is_finished(job)]
+    finished = {result.output for result in results}
+    todo = [job for job in jobs if str(job.output) not in finished]
+    if todo and not engine.cluster and engine.jobs > 1:
+        engine = Engine(_jobs_that_fit(todo, engine.jobs), engine.threads)
+    if engine.threads is None and not engine.cluster and engine.jobs > 1:
+        engine = Engine(engine.jobs, max(1, (os.cpu_count() or 1) // engine.jobs))
+    config = {"command": ["cade", *sys.argv[1:]] if sys.argv[1:2] == ["batch"] else None, "engine": engine.name,
+              "captures": str(captures), "output_dir": str(output_dir), "force": force,
+              "skip_panels": flight.skip_panels, "panels": list(flight.panels), "options": options.fingerprint()}
+    if results:
+        print_note(f"{len(results)} of {len(jobs)} captures already finished (cubes verified); --force redoes them")
+    _run(todo, results, engine=engine, log=log, config=config, progress_bar=progress_bar)
+
+
+def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict, progress_bar: Callable) -> None:
+    """Run ``todo`` on ``engine`` with the bar, each result shown as it comes, the log written at the end."""
+    from contextlib import nullcontext
+
+    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_output
+    from cade_cli.scale.batch import BatchSummary, log_document, run_dask, run_local
+    from cade_cli.scale.batch_job import remove_stale_temporaries
+
+    running = (run_dask(todo, address=engine.scheduler, scheduler_file=engine.scheduler_file, threads=engine.threads)
+               if engine.cluster else run_local(todo, jobs=engine.jobs, threads=engine.threads))
+    summary = BatchSummary(total=len(todo) + len(results), skipped=len(results))
+    progress, shown = progress_bar(), set()
+    started = time.perf_counter()
+    try:
+        with progress if todo else nullcontext():
+            bar = progress.add_task(f"captures ({engine.name})", total=len(todo))
+            for result in running:
+                results.append(result)
+                summary.add(result)
+                _show(progress.console, result, shown)
+                progress.update(bar, advance=1)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+        print_warning(f"interrupted: {summary.done} capture(s) finished in this run, their cubes complete; rerun the "
+                      f"same command to go on (finished captures are skipped); log {log}")
+        raise
+    finally:
+        summary.seconds = time.perf_counter() - started
+        remove_stale_temporaries(todo)
+        with atomic_output(log) as temporary:
+            temporary.write_text(log_document(results, summary, config=config, entries="captures"))
+    per_capture = f"{summary.seconds / summary.done:.1f} s per capture, " if summary.done else ""
+    print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} "
+          f"captures; {summary.seconds:.1f} s ({per_capture}{engine.name}); log {log}")
+    if summary.failed:
+        raise CadeError(f"{summary.failed} of {summary.total} captures failed (each named above and in {log})")
+
+
+def _show(console, result, shown: set[str]) -> None:
+    """What one finished capture has to say above the bar: its notes (each once) or its failure."""
+    for note in result.notes:
+        if f"{result.name}: {note}" not in shown:
+            shown.add(f"{result.name}: {note}")
+            console.print(f"note: {result.name}: {note}", highlight=False, markup=False)
+    if result.status == "failed":
+        console.print(f"warning: capture {result.name} failed: {result.error}", highlight=False, markup=False)
+
+
+def _jobs_that_fit(todo: list, jobs: int) -> int:
+    """``jobs``, lowered (with a note) until that many jobs of the largest capture fit the memory available."""
+    from cade_cli.scale.batch import available_memory_bytes, cap_jobs
+    from cade_cli.scale.batch_captures import capture_memory_bytes
+
+    size, per_job = capture_memory_bytes(todo)
+    allowed = cap_jobs(jobs, per_job)
+    if allowed < jobs:
+        print_note(f"--jobs {jobs} lowered to {allowed}: the largest capture, {size}, may take "
+                   f"{per_job / 2**30:.1f} GB per job and {available_memory_bytes() / 2**30:.1f} GB are available")
+    return allowed
