@@ -139,8 +139,8 @@ class PairCheck:
         if "vertical" in self.problems:
             findings.append(f"the pair is not rectified: vertical offset {self.vertical_offset:+.2f} px, rotation "
                             f"{self.rotation:+.2f} deg (up to {self.vertical_worst:.1f} px across the width, "
-                            f"{VERTICAL_TOLERANCE_PX} px tolerated); rectify it (cade rectify, or --rig RIG.json "
-                            "--fix-vertical)")
+                            f"{VERTICAL_TOLERANCE_PX} px tolerated); rectify it (--fix-vertical, or cade rectify "
+                            "--uncalibrated, or with a calibrated rig --rig RIG.json)")
         if "range" in self.problems:
             low, high = self.suggested
             findings.append(f"{100 * self.outside_share:.0f}% of the {self.matches} feature matches lie outside the "

@@ -58,15 +58,17 @@ def batch(
                                                   "(default: the rig's rectified pair, else the first other "
                                                   "camera).")] = None,
     frame: Annotated[
-        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
-                          "the 'original' one (disparity stays in rectified px).")
+        str, typer.Option("--frame", help="With --rig or --fix-vertical: outputs on the 'rectified' reference image, "
+                          "or resampled onto the 'original' one (disparity stays in rectified px).")
     ] = "rectified",
     depth: Annotated[bool, typer.Option("--depth", help="With --rig: also write <name>_depth.tif (float32, metres, "
                                         "NaN unknown).")] = False,
     points: Annotated[bool, typer.Option("--points", help="With --rig: also write <name>_points.ply (binary PLY, "
                                          "metres, reference camera frame).")] = False,
-    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
-                                               "roll the rectification self-check measures before matching.")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll before "
+                                               "matching: with --rig, what the rectification self-check measures; "
+                                               "without, the warp estimated from each pair (as cade rectify "
+                                               "--uncalibrated; recorded in its .cade.json).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="A pair the pair check finds unrectified, swapped or "
                                          "outside the range searched fails (nothing written for it) instead of "
                                          "warning.")] = False,

@@ -1,4 +1,4 @@
-"""``cade disparity``: the disparity of one pair of bands, with or without a rig (``cade register`` is in :mod:`cade_cli.cli.register`).
+"""``cade disparity``: the disparity of one pair of bands, with or without a rig (``cade register``: its own module).
 """
 
 from __future__ import annotations
@@ -52,15 +52,17 @@ def disparity(
     camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took RIGHT (default: "
                                                   "the rig's rectified pair, else the first other camera).")] = None,
     frame: Annotated[
-        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
-                          "the 'original' one (disparity stays in rectified px).")
+        str, typer.Option("--frame", help="With --rig or --fix-vertical: outputs on the 'rectified' reference image, "
+                          "or resampled onto the 'original' one (disparity stays in rectified px).")
     ] = "rectified",
     depth: Annotated[Optional[Path], typer.Option("--depth", help="With --rig: also write depth, float32 TIFF, "
                                                   "metres, NaN unknown.")] = None,
     points: Annotated[Optional[Path], typer.Option("--points", help="With --rig: also write a point cloud (binary "
                                                    "PLY, metres, reference camera frame, grey from LEFT).")] = None,
-    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
-                                               "roll the rectification self-check measures before matching.")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll before "
+                                               "matching: with --rig, what the rectification self-check measures; "
+                                               "without, the warp estimated from the pair alone (as cade rectify "
+                                               "--uncalibrated; recorded in OUTPUT.rectification.json).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
                                          "or outside the range searched (exit 1, nothing written) instead of "
                                          "warning.")] = False,
@@ -91,9 +93,8 @@ def disparity(
         raise CadeError(f"--vis and --validity both name {vis}; give them different names")
     if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
         raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
-    rig_only = [option for option, given in (("--camera", camera is not None), ("--frame", frame != "rectified"),
-                ("--depth", depth is not None), ("--points", points is not None), ("--fix-vertical", fix_vertical))
-                if given]
+    rig_only = [option for option, given in (("--camera", camera is not None), ("--depth", depth is not None),
+                ("--points", points is not None), ("--frame", frame != "rectified" and not fix_vertical)) if given]
     if rig_file is not None:
         _disparity_with_rig(
             rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
@@ -106,10 +107,21 @@ def disparity(
                         f"RIG.json or drop {rig_only[0]}")
     left_image, right_image = read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
+    warp, warp_record = None, None
+    if fix_vertical:  # no rig: the warp from the pair alone
+        from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
+        from cade_cli.rigs.outputs import FRAMES
+
+        if frame not in FRAMES:
+            raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
+        warp_record = check_warp_record(output, (left, right))
+        warp = estimate_warp(left_image, right_image)
+        left_image, right_image = warp.rectify(left_image, right_image)
     min_disp, max_disp = resolve_range_options(min_disp, max_disp, left_image, right_image)
     check_disparity_range(output, min_disp, max_disp)  # before any matching: a 16-bit PNG holds [0, 256) px
     with StepBar(3, "checking the pair") as bar:  # check, match (or one step per tile), write
-        pair_check = check_pair_before_matching(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
+        pair_check = check_pair_before_matching(left_image, right_image, min_disp=min_disp, max_disp=max_disp,
+                                                strict=strict)
         bar.advance("matching")
         result = _match_pair(bar, left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
                              preprocess=preprocess, model=model, memory_limit=budget)
@@ -119,16 +131,25 @@ def disparity(
         warn_if_textureless(left, right, left_image, right_image)
         if confidence is not None and result.confidence is None:
             raise CadeError(f"method {method} gives no confidence; drop --confidence")
-        with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
+        unfilled, valid, trust = result.disparity, result.valid, result.confidence
+        if warp is not None and frame == "original":
+            from cade_cli.rigs.uncalibrated import match_in_original_frame
+
+            unfilled, valid, dense, trust = match_in_original_frame(warp, unfilled, valid, dense, trust)
+        with atomic_outputs([output, vis, validity, confidence, warp_record]) as staged:  # all appear, or none
             roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
             write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
-                                disparity=result.disparity, valid=result.valid, confidence=result.confidence,
-                                fill=fill, vis_range=colour_range)
+                                disparity=unfilled, valid=valid, confidence=trust, fill=fill, vis_range=colour_range)
+            if warp is not None:
+                from cade_cli.cli.uncalibrated import write_warp_record
+
+                write_warp_record(staged[warp_record], warp, left=str(left), right=str(right), frame=frame)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
         f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
-        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
+        f"valid {100.0 * valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
+        + (f"; {frame} frame of the uncalibrated {warp.model} rectification ({warp_record})" if warp else "")
     )
 
 

@@ -55,6 +55,11 @@ def register(
                                                 "no valid registration tinted blue.")] = None,
     vis_mode: Annotated[str, typer.Option("--vis-mode", help="With --vis: 'overlay' (magenta / green) or 'checker' "
                                           "(a checkerboard of the two bands' tiles).")] = "overlay",
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and rotation of "
+                                               "the pair before matching, with the warp estimated from the pair alone "
+                                               "(as cade rectify --uncalibrated; recorded in "
+                                               "OUTPUT.rectification.json); the result stays in the reference band's "
+                                               "own view.")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
                                          "or outside the range searched (exit 1, nothing written) instead of "
                                          "warning.")] = False,
@@ -82,6 +87,9 @@ def register(
         raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
+    if fix_vertical and disparity_file is not None:
+        raise CadeError("--fix-vertical rectifies the pair before its disparity is estimated, but --disparity gives "
+                        "it; drop one")
     if disparity_file is not None:
         estimation = [f"--{name.replace('_', '-')}" for name in ("method", "max_disp", "min_disp", "preprocess", "model")
                       if context.get_parameter_source(name).name != "DEFAULT"]
@@ -98,15 +106,30 @@ def register(
         reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
     )
     started = time.perf_counter()
+    warp, warp_record, original_reference = None, None, reference_image
+    if fix_vertical:  # the warp from the pair alone
+        from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
+
+        warp_record = check_warp_record(output, inputs)
+        warp = estimate_warp(reference_image, moving_image)
+        reference_image, moving_image = warp.rectify(reference_image, moving_image)
     result, source, pair_check = _register_pair(
         reference, moving, reference_image, moving_image, disparity_file=disparity_file, validity_file=validity_file,
         method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, fill=fill, model=model,
         strict=strict)
+    if warp is not None:
+        from cade_cli.cli.uncalibrated import registration_in_original_frame
+
+        result = registration_in_original_frame(warp, result, original_reference)
     seconds = time.perf_counter() - started
-    with atomic_outputs([output, vis]) as staged:  # all outputs appear together, or none
+    with atomic_outputs([output, vis, warp_record]) as staged:  # all outputs appear together, or none
         write_registration(staged[output], result)
         if vis is not None:
             write_registration_picture(staged[vis], result, mode=vis_mode)
+        if warp is not None:
+            from cade_cli.cli.uncalibrated import write_warp_record
+
+            write_warp_record(staged[warp_record], warp, reference=str(reference), moving=str(moving))
     height, width = result.reference.shape
     checked = "" if pair_check is None else f", {pair_check.summary()}"
     print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%{checked}, "
@@ -155,8 +178,9 @@ def _register_pair(reference: Path, moving: Path, reference_image, moving_image,
         finite = given[np.isfinite(given)]
         pair_check = None
         if finite.size and given.shape == reference_image.shape:
-            pair_check = check_pair_before_matching(reference_image, moving_image, min_disp=min(0, math.floor(float(finite.min()))),
-                                     max_disp=math.ceil(float(finite.max())), strict=strict, roles=REGISTER_ROLES)
+            low, high = min(0, math.floor(float(finite.min()))), math.ceil(float(finite.max()))
+            pair_check = check_pair_before_matching(reference_image, moving_image, min_disp=low, max_disp=high,
+                                                    strict=strict, roles=REGISTER_ROLES)
         result = register_band(moving_image, reference_image, disparity=given, disparity_valid=trusted, fill=fill,
                                disparity_name=str(disparity_file))
         source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
@@ -164,8 +188,8 @@ def _register_pair(reference: Path, moving: Path, reference_image, moving_image,
     from cade_cli.matching import get_matcher
 
     min_disp, max_disp = resolve_range_options(min_disp, max_disp, reference_image, moving_image)
-    pair_check = check_pair_before_matching(reference_image, moving_image, min_disp=min_disp, max_disp=max_disp, strict=strict,
-                             roles=REGISTER_ROLES)
+    pair_check = check_pair_before_matching(reference_image, moving_image, min_disp=min_disp, max_disp=max_disp,
+                                            strict=strict, roles=REGISTER_ROLES)
     with StepBar(1, "matching and warping"):
         result = register_band(moving_image, reference_image, method=method, max_disp=max_disp,
                                min_disp=min_disp, preprocess=preprocess, fill=fill, model=model)
