@@ -56,7 +56,7 @@ def benchmark(
             raise CadeError(f"{option} {value!r} names nothing; give comma-separated names, or leave it out for the default")
     # Every output is checked before the run and staged during it; all appear at the end, or none.
     with atomic_outputs([json_file, report, html], folders=[save_dir]) as staged:
-        with StepBar(None, f"benchmark {dataset}") as bar:  # one step per matcher run
+        with StepBar(None, f"benchmark {dataset}", plain=True, noun="tasks") as bar:  # one step per matcher run
 
             learned = [name for name in split(methods) if name in LEARNED_METHODS]
             if model is not None and not learned:

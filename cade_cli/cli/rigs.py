@@ -236,7 +236,8 @@ def register_array(
             print_note(f"{note}; camera {camera.name} uses it")
         bands.append(band)
     started = time.perf_counter()
-    with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras") as bar:
+    with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras", plain=True,
+                 noun="cameras") as bar:
         registration = register_cameras(
             bands, geometry, parallax=not plane_only, method=method, search=search, scale=match_scale,
             preprocess=preprocess, model=model,
