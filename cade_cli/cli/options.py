@@ -28,9 +28,9 @@ MethodOption = Annotated[
     typer.Option(
         "--method",
         "-m",
-        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), has the lowest error "
-        "of the four on the cross-spectral benchmark and is about 3x faster than census-sgm, the best "
-        "classical one (docs/results.md).",
+        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), is the most accurate "
+        "on cross-spectral pairs in the project's benchmarks, and faster than census-sgm; census-sgm keeps thin "
+        "structures better (figures: docs/results.md).",
     ),
 ]
 

@@ -45,6 +45,10 @@ def disparity(
                                      "higher = more trusted, 0 = rejected; keep pixels above a threshold to mask what "
                                      "the matcher is unsure of (README: what each method measures).")
     ] = None,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
+                                         "or outside the range searched (exit 1, nothing written) instead of "
+                                         "warning.")] = False,
+    # the options of rigs and unrectified pairs come last in --help, apart from the everyday ones
     rig_file: Annotated[
         Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): LEFT is its reference camera's "
                                      "image, RIGHT another camera's; the pair is rectified first (docs/rigs.md).")
@@ -63,9 +67,6 @@ def disparity(
                                                "matching: with --rig, what the rectification self-check measures; "
                                                "without, the warp estimated from the pair alone (as cade rectify "
                                                "--uncalibrated; recorded in OUTPUT.rectification.json).")] = False,
-    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
-                                         "or outside the range searched (exit 1, nothing written) instead of "
-                                         "warning.")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.errors import CadeError
