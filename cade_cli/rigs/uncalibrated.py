@@ -193,7 +193,10 @@ def estimate_pair_rectification(left: np.ndarray, right: np.ndarray, *, features
     if near.sum() < MIN_MATCHES:
         raise _unsupported(f"only {int(near.sum())} feature matches agree on one row offset ({MIN_MATCHES} needed): "
                            "too little texture the bands share")
-    fit, inliers = fit_vertical_misalignment(points_right[near, 0], dy[near], size=(width, height))
+    try:
+        fit, inliers = fit_vertical_misalignment(points_right[near, 0], dy[near], size=(width, height))
+    except CadeError:  # too few inliers left by the robust fit
+        raise _unsupported(f"the {int(near.sum())} matches near one row offset do not agree on a line") from None
     right_warp = vertical_warp(fit.offset, fit.roll, fit.centre)
     vertical = PairRectification(
         model="vertical", left_warp=np.eye(3), right_warp=right_warp, size=(width, height), matches=len(dy),
