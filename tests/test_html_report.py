@@ -35,18 +35,24 @@ def pictures_of(page: str) -> list[np.ndarray]:
     return [cv2.imdecode(np.frombuffer(base64.b64decode(item), np.uint8), cv2.IMREAD_COLOR) for item in data]
 
 
-@pytest.fixture
-def report_page(folder_dataset, tmp_path, capsys) -> Path:
-    """``cade benchmark --html`` of the two-scene folder dataset: sgbm, CS and RGB."""
-    return html_of(folder_dataset, tmp_path / "report.html", capsys, protocol="cs,rgb", preprocess="none,cade")
+@pytest.fixture(scope="module")
+def report_page(tmp_path_factory) -> Path:
+    """``cade benchmark --html`` of the two-scene folder dataset: sgbm, CS and RGB; run once for
+    the tests that only read the page."""
+    from conftest import write_folder_dataset
+
+    root = tmp_path_factory.mktemp("report")
+    data = write_folder_dataset(root / "mine", np.random.default_rng(20240414))
+    return html_of(data, root / "report.html", None, protocol="cs,rgb", preprocess="none,cade")
 
 
 def html_of(data_dir: Path, page: Path, capsys, *, protocol: str, preprocess: str, extra=()) -> Path:
-    """Run ``cade benchmark --html page`` with sgbm on the folder dataset at ``data_dir``."""
+    """Run ``cade benchmark --html page`` with sgbm on the folder dataset at ``data_dir``
+    (``capsys``: to show stderr on failure, None outside a test's own scope)."""
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(data_dir), "--methods", "sgbm",
                   "--protocol", protocol, "--preprocess", preprocess, "--html", str(page), *extra])
-    assert exit_info.value.code == 0, capsys.readouterr().err
+    assert exit_info.value.code == 0, "" if capsys is None else capsys.readouterr().err
     return page
 
 
