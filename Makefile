@@ -28,7 +28,7 @@ demo: $(RUNTIME)
 	mkdir -p $(OUT)
 	$(BIN)/cade disparity $(SAMPLE)/left_R.png $(SAMPLE)/right_B.png -o $(OUT)/art_disparity.pfm \
 		--max-disp 80 --vis $(OUT)/art_disparity.png
-	$(BIN)/cade register $(SAMPLE)/right_B.png $(SAMPLE)/left_R.png -o $(OUT)/art_registered.tif --max-disp 80 \
+	$(BIN)/cade register --reference $(SAMPLE)/left_R.png --moving $(SAMPLE)/right_B.png -o $(OUT)/art_registered.tif --max-disp 80 \
 		--vis $(OUT)/art_registered.png
 	@echo "wrote $(OUT)/art_disparity.pfm, $(OUT)/art_disparity.png (colourised), $(OUT)/art_registered.tif," \
 		"$(OUT)/art_registered.png (overlay)"

@@ -128,18 +128,19 @@ class PairCheck:
         """Whether there were enough matches to judge the pair."""
         return self.vertical_offset is not None
 
-    def describe(self) -> str:
-        """One line for the user: what is wrong, the numbers measured, and the fix; "" when nothing is."""
+    def describe(self, *, swap_fix: str = "give the reference (left) image first") -> str:
+        """One line for the user: what is wrong, the numbers measured, and the fix; "" when nothing is.
+        ``swap_fix``: how the command that reports it undoes a swapped pair."""
         findings = []
         if "swapped" in self.problems:
             findings.append(f"{100 * self.negative_share:.0f}% of the {self.matches} feature matches have a negative "
                             f"disparity ({self.disparity[0]:+.1f}..{self.disparity[1]:+.1f} px): LEFT and RIGHT look "
-                            "swapped; give the reference (left) image first")
+                            f"swapped; {swap_fix}")
         if "vertical" in self.problems:
             findings.append(f"the pair is not rectified: vertical offset {self.vertical_offset:+.2f} px, rotation "
                             f"{self.rotation:+.2f} deg (up to {self.vertical_worst:.1f} px across the width, "
-                            f"{VERTICAL_TOLERANCE_PX} px tolerated); rectify it (cade rectify, or --rig RIG.json "
-                            "--fix-vertical)")
+                            f"{VERTICAL_TOLERANCE_PX} px tolerated); rectify it (--fix-vertical, or cade rectify "
+                            "--uncalibrated, or with a calibrated rig --rig RIG.json)")
         if "range" in self.problems:
             low, high = self.suggested
             findings.append(f"{100 * self.outside_share:.0f}% of the {self.matches} feature matches lie outside the "

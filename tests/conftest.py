@@ -33,7 +33,11 @@ def rng() -> np.random.Generator:
 @pytest.fixture
 def folder_dataset(tmp_path, rng) -> Path:
     """Two scenes in the `folder` layout: RGB views whose channels respond differently."""
-    root = tmp_path / "mine"
+    return write_folder_dataset(tmp_path / "mine", rng)
+
+
+def write_folder_dataset(root: Path, rng: np.random.Generator) -> Path:
+    """:func:`folder_dataset`'s two scenes written under ``root`` (for fixtures of a wider scope)."""
     for sub in ("left", "right", "gt"):
         (root / sub).mkdir(parents=True)
     for name in ("first", "second"):
@@ -46,3 +50,12 @@ def folder_dataset(tmp_path, rng) -> Path:
         cv2.imwrite(str(root / "right" / f"{name}.png"), rgb(pair.right))
         np.save(root / "gt" / f"{name}.npy", pair.disparity)
     return root
+
+
+@pytest.fixture
+def small_validation(monkeypatch):
+    """Training runs in tests validate on 4 generated pairs of 96 x 128 px instead of a real
+    run's 24 of 256 x 384: the same code, a sixth of the pairs at an eighth of the size."""
+    validation = pytest.importorskip("cade_cli.train.validation")
+    monkeypatch.setattr(validation, "SYNTHETIC_PAIRS", 4)
+    monkeypatch.setattr(validation, "SYNTHETIC_SIZE", (96, 128))

@@ -458,7 +458,8 @@ def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_i
 
 RIG_BATCH_ERRORS = {
     "depth without a rig": (["--depth"], "--depth needs --rig"),
-    "fix-vertical without a rig": (["--fix-vertical"], "--fix-vertical needs --rig"),
+    "frame without a rig or --fix-vertical": (["--frame", "original"], "--frame needs --rig"),
+    "unknown frame with --fix-vertical": (["--fix-vertical", "--frame", "sideways"], "unknown --frame 'sideways'"),
     "missing rig": (["--rig", "missing.json"], "does not exist"),
     "unknown camera": (["--rig", "rig.json", "--camera", "nir"], "no camera 'nir'"),
     "bad memory limit": (["--memory-limit", "lots"], "--memory-limit 'lots'"),

@@ -427,3 +427,15 @@ def test_brightness_classes_put_each_gross_error_where_the_light_is():
     wrong = dataclasses.replace(scene, disparity=gt + 10)
     off = brightness.count_scene(wrong, models=("cade-v11",), protocol=protocol, edges=edges)[0]
     assert np.all(off[:, 0] >= 0.9 * off[:, 1])
+
+
+def test_no_garbage_collection_lands_inside_a_timed_call_and_the_collector_comes_back_on():
+    import gc
+
+    from cade_cli.evaluation.timing import measure
+
+    seconds, inside = measure(gc.isenabled, warmup=1, repeat=3)
+    assert inside is False and len(seconds) == 3 and gc.isenabled()
+    with pytest.raises(ZeroDivisionError):
+        measure(lambda: 1 / 0)
+    assert gc.isenabled()  # also after a call that failed

@@ -91,7 +91,7 @@ def test_negative_min_disp(tmp_path, rng, capsys):
 def test_register_writes_reference_registered_and_validity(pair_files, tmp_path, capsys):
     pair, left, right = pair_files
     out = tmp_path / "registered.tif"
-    code, stdout, stderr = run_cade(["register", right, left, "-o", out, "--max-disp", 20, "--fill", "none"], capsys)
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--max-disp", 20, "--fill", "none"], capsys)
     assert code == 0, stderr
     bands = load_image(out)
     assert bands.shape == (72, 112, 3) and bands.dtype == np.float32
@@ -112,7 +112,7 @@ def test_register_with_a_given_disparity(pair_files, tmp_path, capsys):
 
     write_disparity(disparity, pair.disparity)
     out = tmp_path / "registered.tiff"
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", disparity], capsys)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--disparity", disparity], capsys)
     assert code == 0, stderr
     registered = load_image(out)[..., 1]
     assert np.abs(registered - (0.1 + 0.5 * pair.left**2.0))[pair.reliable].mean() < 0.01
@@ -193,7 +193,7 @@ def test_register_rejects_a_mismatched_disparity(pair_files, tmp_path, capsys):
     _, left, right = pair_files
     np.save(tmp_path / "wrong.npy", np.zeros((10, 10), np.float32))
     out = tmp_path / "r.tif"
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", tmp_path / "wrong.npy"], capsys)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--disparity", tmp_path / "wrong.npy"], capsys)
     assert code != 0 and "does not match" in stderr and not out.exists()
 
 
@@ -246,13 +246,13 @@ def test_register_trusts_only_the_valid_pixels_of_a_given_map(pair_files, tmp_pa
     pair, left, right = pair_files
     disparity, mask, out = tmp_path / "d.pfm", tmp_path / "valid.tif", tmp_path / "reg.tif"
     assert run_cade(["disparity", left, right, "-o", disparity, "--max-disp", 20, "--validity", mask], capsys)[0] == 0
-    code, stdout, stderr = run_cade(["register", right, left, "-o", out, "--disparity", disparity,
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--disparity", disparity,
                                      "--validity", mask], capsys)
     assert code == 0, stderr
     registered_valid = tifffile.imread(out)[2] > 0
     written_valid = tifffile.imread(mask) > 0
     assert not (registered_valid & ~written_valid).any() and (~written_valid).any()
-    code, _, stderr = run_cade(["register", right, left, "-o", tmp_path / "r2.tif", "--validity", mask], capsys)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "r2.tif", "--validity", mask], capsys)
     assert code != 0 and "--validity needs --disparity" in stderr
 
 
@@ -353,14 +353,14 @@ def test_range_entirely_below_zero_and_auto_for_register(tmp_path, rng, capsys):
     assert code == 0, stderr
     assert np.median(read_disparity(out)[8:-8, 8:-30]) == pytest.approx(-12, abs=0.25)
     registered = tmp_path / "reg.tif"
-    code, stdout, stderr = run_cade(["register", right, left, "-o", registered, "-m", "census-sgm", "--min-disp",
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", registered, "-m", "census-sgm", "--min-disp",
                                      "auto", "--max-disp", 0], capsys)
     assert code == 0, stderr
     assert "note: --min-disp auto: searching [" in stderr and ", 0] px" in stderr
     bands = load_image(registered)
     inner = (slice(8, -8), slice(8, -30))
     assert np.abs(bands[..., 1] - bands[..., 0])[inner].mean() < 0.02  # the moving band lands on the reference
-    code, _, stderr = run_cade(["register", right, left, "-o", registered, "-m", "census-sgm", "--max-disp", "ten"],
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", registered, "-m", "census-sgm", "--max-disp", "ten"],
                                capsys)
     assert code != 0 and "'auto'" in stderr and "valid integer" not in stderr
 

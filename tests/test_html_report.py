@@ -31,22 +31,28 @@ TASKS = ("R&gt;G", "R&gt;B", "G&gt;R", "G&gt;B", "B&gt;R", "B&gt;G", "RGB-median
 
 def pictures_of(page: str) -> list[np.ndarray]:
     """Every embedded picture of ``page``, decoded."""
-    data = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    data = re.findall(r'src="data:image/(?:jpeg|png);base64,([A-Za-z0-9+/=]+)"', page)
     return [cv2.imdecode(np.frombuffer(base64.b64decode(item), np.uint8), cv2.IMREAD_COLOR) for item in data]
 
 
-@pytest.fixture
-def report_page(folder_dataset, tmp_path, capsys) -> Path:
-    """``cade benchmark --html`` of the two-scene folder dataset: sgbm, CS and RGB."""
-    return html_of(folder_dataset, tmp_path / "report.html", capsys, protocol="cs,rgb", preprocess="none,cade")
+@pytest.fixture(scope="module")
+def report_page(tmp_path_factory) -> Path:
+    """``cade benchmark --html`` of the two-scene folder dataset: sgbm, CS and RGB; run once for
+    the tests that only read the page."""
+    from conftest import write_folder_dataset
+
+    root = tmp_path_factory.mktemp("report")
+    data = write_folder_dataset(root / "mine", np.random.default_rng(20240414))
+    return html_of(data, root / "report.html", None, protocol="cs,rgb", preprocess="none,cade")
 
 
-def html_of(data_dir: Path, page: Path, capsys, *, protocol: str, preprocess: str) -> Path:
-    """Run ``cade benchmark --html page`` with sgbm on the folder dataset at ``data_dir``."""
+def html_of(data_dir: Path, page: Path, capsys, *, protocol: str, preprocess: str, extra=()) -> Path:
+    """Run ``cade benchmark --html page`` with sgbm on the folder dataset at ``data_dir``
+    (``capsys``: to show stderr on failure, None outside a test's own scope)."""
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(data_dir), "--methods", "sgbm",
-                  "--protocol", protocol, "--preprocess", preprocess, "--html", str(page)])
-    assert exit_info.value.code == 0, capsys.readouterr().err
+                  "--protocol", protocol, "--preprocess", preprocess, "--html", str(page), *extra])
+    assert exit_info.value.code == 0, "" if capsys is None else capsys.readouterr().err
     return page
 
 
@@ -56,12 +62,89 @@ def test_the_page_holds_every_scene_task_and_method_with_decodable_pictures(repo
                  "all pixels with ground truth"):
         assert text in page
     pictures = pictures_of(page)
-    # per scene and task (6 CS + the RGB median): the ground truth, 2 bands, then a
-    # disparity and an error picture per method and preprocessing (2)
-    assert len(pictures) == len(SCENES) * len(TASKS) * (1 + 2 + 2 * 2)
+    # per scene, of its first task (CS R>G) only: the ground truth, 2 bands, then a
+    # disparity and an error picture per method and preprocessing (2); every task's scores in the tables
+    assert len(pictures) == len(SCENES) * (1 + 2 + 2 * 2)
+    assert page.count("<h3 id=") == len(SCENES) and "first: CS R&gt;G</h3>" in page
+    assert all(f"<td>{scene}</td><td>rgb</td><td>RGB-median</td>" in page for scene in SCENES)
     assert all(picture is not None and picture.size for picture in pictures)
     assert max(picture.shape[1] for picture in pictures) <= max(TILE_WIDTH, MIN_WIDTH)
     assert "http://" not in page and "https://" not in page  # self-contained: nothing to fetch
+
+
+def test_every_task_s_pictures_with_html_pictures_all(folder_dataset, tmp_path, capsys):
+    page = html_of(folder_dataset, tmp_path / "all.html", capsys, protocol="cs,rgb", preprocess="none,cade",
+                   extra=["--html-pictures", "all"]).read_text(encoding="utf-8")
+    # per scene and task (6 CS + the RGB median): the ground truth, 2 bands, then 2 pictures per method row (2)
+    assert len(pictures_of(page)) == len(SCENES) * len(TASKS) * (1 + 2 + 2 * 2)
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["benchmark", "--dataset", "folder", "--data-dir", str(folder_dataset), "--html-pictures", "some"])
+    assert exit_info.value.code == 1 and "--html-pictures 'some'" in capsys.readouterr().err
+
+
+FULL_RUN_SCENES = 15
+"""Middlebury 2014's training scenes: what a whole run of ``cade benchmark -d middlebury14`` pictures."""
+FULL_RUN_PICTURE_PX = 360 * 300
+"""A Middlebury 2014 picture at the report's width (its scenes are about 0.7 as high as wide,
+plus a legend under the maps), px."""
+MAX_PAGE_BYTES = 15_000_000
+
+
+def test_a_whole_middlebury_run_s_page_stays_under_15_mb_in_proportion(picture_page):
+    """Scaled by picture area from this run (a 300 px wide textured scene), the page of a whole
+    Middlebury 2014 run with the default methods stays under 15 MB."""
+    from cade_cli.cli.options import BENCHMARK_METHODS
+    from cade_cli.evaluation.loop import takes_preprocess
+    from cade_cli.matching import MATCHERS
+
+    page = picture_page.read_text(encoding="utf-8")
+    data = re.findall(r'src="data:image/(?:jpeg|png);base64,([A-Za-z0-9+/=]+)"', page)
+    pixels = sum(picture.shape[0] * picture.shape[1] for picture in pictures_of(page))
+    bytes_per_px = sum(len(item) for item in data) / pixels
+    rows = sum(takes_preprocess(MATCHERS[method], value) for method in BENCHMARK_METHODS for value in ("none", "cade"))
+    pictures = FULL_RUN_SCENES * (1 + 2 + 2 * rows)  # ground truth, bands, a disparity and an error per row
+    around = len(page) - sum(len(item) for item in data)  # tables and text, for one scene and one row
+    assert bytes_per_px * FULL_RUN_PICTURE_PX * pictures + around * FULL_RUN_SCENES * rows < MAX_PAGE_BYTES
+
+
+def test_the_best_figure_of_each_column_is_marked_and_the_labels_explained(report_page):
+    page = report_page.read_text(encoding="utf-8")
+    tables = re.findall(r"<thead>(.*?)</thead><tbody>(.*?)</tbody>", page)
+    summary = [(head, body) for head, body in tables if head.startswith("<tr><th>method</th>")]
+    assert summary
+    for head, body in summary:
+        names = re.findall(r"<th>(.*?)</th>", head)
+        rows = [re.findall(r"<td( class=\"best\")?>(.*?)</td>", row) for row in re.findall(r"<tr>(.*?)</tr>", body)]
+        for column in range(1, len(names)):
+            values = [float(row[column][1]) for row in rows if row[column][1] not in ("—", "nan")]
+            marked = [float(row[column][1]) for row in rows if row[column][0]]
+            best = max(values) if names[column].endswith("gain %") else min(values)
+            assert marked and all(value == best for value in marked), (names[column], values, marked)
+    for text in ("How to read this page", "METHOD + none", "METHOD + cade", "CS (protocol)", "RGB (protocol)",
+                 "cross-spectral: six tasks", "black = the matcher rejected the pixel"):
+        assert text in page
+
+
+def test_a_disparity_picture_draws_rejected_pixels_black():
+    """A filled map (every pixel a value) whose left half the matcher rejected: its picture is
+    black there and coloured elsewhere, though the error picture scores the filled map."""
+    from types import SimpleNamespace
+
+    from cade_cli.evaluation.album import SceneAlbum
+
+    truth = np.tile(np.linspace(5, 20, 200, dtype=np.float32), (120, 1))
+    view = np.zeros((120, 200, 3), np.float32)
+    scene = SimpleNamespace(name="s", disparity=truth, max_disp=32, left=view, right=view)
+    album = SceneAlbum.of(scene, width=TILE_WIDTH)
+    valid = np.ones_like(truth, bool)
+    valid[:, :100] = False
+    record = SimpleNamespace(protocol="native", method="m", preprocess="none", degradation="none", task="grey")
+    album.add(record, truth, scene, valid=valid)
+    disparity, error = (cv2.imdecode(np.frombuffer(item, np.uint8), cv2.IMREAD_COLOR) for item in
+                        album.maps[("native", "m", "none", "none", "grey")])
+    top = disparity[5:100]  # the map, above its legend
+    left, right = top[:, 10:90].max(axis=2), top[:, 110:190].max(axis=2)
+    assert np.median(left) < 30 and np.median(right) > 100
 
 
 def test_the_header_names_the_network_and_its_sha256(folder_dataset, tmp_path, capsys):

@@ -214,6 +214,68 @@ def test_batch_strict_fails_the_shifted_pair_only_and_records_the_offset(shifted
     assert record["pair_check"]["vertical_offset_px"] == pytest.approx(6.0, abs=1.0)
 
 
+
+def test_register_warns_about_a_swapped_pair_and_names_the_options_that_fix_it(shifted_files, tmp_path, capsys):
+    left, right, _ = shifted_files
+    output = tmp_path / "r.tif"
+    code, out, err = run_cade(["register", "--reference", right, "--moving", left, "-o", output, "-m", "sgbm",
+                               "--max-disp", "32"], capsys)
+    assert code == 0 and output.exists()
+    warnings = [line for line in err.splitlines() if line.startswith("warning: pair check:")]
+    assert len(warnings) == 1 and "swapped" in warnings[0] and "--reference" in warnings[0]
+    code, out, err = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "ok.tif", "-m",
+                               "sgbm", "--max-disp", "32"], capsys)
+    assert code == 0 and "pair check" not in err and "vertical offset" in out
+
+
+@pytest.mark.parametrize("given", [False, True])
+def test_register_strict_refuses_a_swapped_pair_with_one_line_and_writes_nothing(shifted_files, tmp_path, capsys,
+                                                                                 given):
+    """Estimated, or from a given disparity map (checked against that map's range)."""
+    left, right, _ = shifted_files
+    source = ["-m", "sgbm", "--max-disp", "32"]
+    if given:
+        disparity = tmp_path / "given.npy"
+        np.save(disparity, np.full((240, 360), DISPARITY, np.float32))
+        source = ["--disparity", disparity]
+    output, picture = tmp_path / "r.tif", tmp_path / "r.png"
+    code, _, err = run_cade(["register", "--reference", right, "--moving", left, "-o", output, "--vis", picture,
+                             "--strict", *source], capsys)
+    assert code == 1
+    assert err.strip().count("\n") == 0 and err.startswith("cade: error: pair check:") and "swapped" in err
+    assert not output.exists() and not picture.exists()
+
+
+def test_register_in_the_old_positional_order_still_works_and_says_it_is_deprecated(shifted_files, tmp_path,
+                                                                                    capsys):
+    left, right, _ = shifted_files
+    old, new = tmp_path / "old.tif", tmp_path / "new.tif"
+    code, _, err = run_cade(["register", right, left, "-o", old, "--disparity", _constant_map(tmp_path)], capsys)
+    assert code == 0 and "pair check" not in err
+    deprecations = [line for line in err.splitlines() if "deprecated" in line]
+    assert len(deprecations) == 1 and f"--reference {left} --moving {right}" in deprecations[0]
+    code, _, err = run_cade(["register", "--reference", left, "--moving", right, "-o", new, "--disparity",
+                             _constant_map(tmp_path)], capsys)
+    assert code == 0 and "deprecated" not in err
+    assert old.read_bytes() == new.read_bytes()
+
+
+@pytest.mark.parametrize("bands", [["--reference", "L"], ["--moving", "R"], ["L", "R", "--reference", "L"], ["L"]])
+def test_register_with_its_bands_half_named_refuses_with_one_line(shifted_files, tmp_path, capsys, bands):
+    left, right, _ = shifted_files
+    named = [{"L": left, "R": right}.get(item, item) for item in bands]
+    output = tmp_path / "r.tif"
+    code, _, err = run_cade(["register", *named, "-o", output, "--disparity", _constant_map(tmp_path)], capsys)
+    assert code == 1 and err.strip().count("\n") == 0 and "--reference" in err and "--moving" in err
+    assert not output.exists()
+
+
+def _constant_map(folder):
+    path = folder / "constant.npy"
+    np.save(path, np.full((240, 360), DISPARITY, np.float32))
+    return path
+
+
 def dominant_line_reference(x, dy, *, width, band=1.0):
     """The slow, obviously-correct :func:`~cade_cli.pair_features.dominant_line`: one rotation at a time."""
     from cade_cli.pair_features import MAX_ROTATION_DEG, ROTATION_STEP_DEG

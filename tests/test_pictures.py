@@ -195,14 +195,14 @@ def test_register_vis_shows_an_aligned_pair_grey(shifted_pair, tmp_path, capsys)
     tints = []
     for disparity, name in ((six, "good"), (zero, "bad")):
         vis = tmp_path / f"{name}.png"
-        code, _, stderr = run_cade(["register", right, left, "-o", tmp_path / f"{name}.tif", "--disparity", disparity,
+        code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / f"{name}.tif", "--disparity", disparity,
                                     "--vis", vis], capsys)
         assert code == 0, stderr
         picture = cv2.imread(str(vis))
         assert picture.shape[0] > 60
         tints.append(_mean_tint(picture[:60, 10:90]))
     assert tints[0] < 2.0 and tints[1] > 30.0
-    code, _, stderr = run_cade(["register", right, left, "-o", tmp_path / "c.tif", "--disparity", six, "--vis",
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "c.tif", "--disparity", six, "--vis",
                                 tmp_path / "c.png", "--vis-mode", "checker"], capsys)
     assert code == 0, stderr
     assert (tmp_path / "c.png").exists()
@@ -217,7 +217,7 @@ def test_register_vis_is_checked_before_any_work(shifted_pair, tmp_path, capsys,
     left, right, six, _ = shifted_pair
     extra = [tmp_path / item if item.startswith("v.") else item for item in extra]
     before = sorted(tmp_path.iterdir())
-    code, stdout, stderr = run_cade(["register", right, left, "-o", tmp_path / "r.tif", "--disparity", six, *extra],
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "r.tif", "--disparity", six, *extra],
                                     capsys)
     assert code == 1 and stdout == ""
     assert stderr.count("\n") == 1 and stderr.startswith("cade: error: ") and message in stderr

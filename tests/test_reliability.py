@@ -104,7 +104,7 @@ def commands(pair, dataset: Path, bad: Path, good: Path) -> dict[str, list]:
         "disparity --vis": [*disparity, "-o", good / "d.pfm", "--vis", bad / "v.png", "--validity", good / "m.png"],
         "disparity --validity": [*disparity, "-o", good / "d.pfm", "--vis", good / "v.png",
                                  "--validity", bad / "m.png"],
-        "register -o": ["register", right, left, "-o", bad / "r.tif", "--max-disp", 8],
+        "register -o": ["register", "--reference", left, "--moving", right, "-o", bad / "r.tif", "--max-disp", 8],
         "benchmark --json": [*benchmark, "--json", bad / "b.json", "--report", good / "b.md",
                              "--save-dir", good / "maps"],
         "benchmark --report": [*benchmark, "--json", good / "b.json", "--report", bad / "b.md",
@@ -170,7 +170,7 @@ def test_register_on_a_full_disk_is_one_line_and_keeps_the_old_file(pair, tmp_pa
     out = tmp_path / "r.tif"
     out.write_text("ORIGINAL")
     monkeypatch.setattr(tifffile, "imwrite", no_space)
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--max-disp", 8], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--max-disp", 8], capfd)
     assert_one_line_error(code, stderr, "could not write", "r.tif", "No space left")
     assert out.read_text() == "ORIGINAL" and hidden_files(tmp_path) == []
 
@@ -213,7 +213,7 @@ def test_a_single_disparity_range_works_for_disparity_and_register(pair, tmp_pat
     code, stdout, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "o.pfm", "--min-disp", 4,
                                      "--max-disp", 4], capfd)
     assert code == 0 and "searched [4, 4]" in stdout, stderr
-    code, stdout, stderr = run_cade(["register", right, left, "-o", tmp_path / "o.tif", "--min-disp", 4,
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "o.tif", "--min-disp", 4,
                                      "--max-disp", 4], capfd)
     assert code == 0 and "over [4, 4]" in stdout, stderr
 
@@ -223,15 +223,15 @@ def test_register_refuses_estimation_options_with_a_given_disparity(pair, tmp_pa
     given_map = tmp_path / "d.pfm"
     write_disparity(given_map, np.full((40, 72), 4.0, np.float32))
     out = tmp_path / "o.tif"
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", given_map, "--method", "foo",
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--disparity", given_map, "--method", "foo",
                                 "--preprocess", "bogus"], capfd)
     assert_one_line_error(code, stderr, "--method and --preprocess", "--disparity")
     assert not out.exists()
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--method", "foo"], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--method", "foo"], capfd)
     assert_one_line_error(code, stderr, "unknown method 'foo'")
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--preprocess", "bogus"], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--preprocess", "bogus"], capfd)
     assert_one_line_error(code, stderr, "unknown preprocess 'bogus'")
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--fill", "bogus"], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--fill", "bogus"], capfd)
     assert_one_line_error(code, stderr, "--fill")
 
 
@@ -246,7 +246,7 @@ def test_a_constant_pair_warns_and_is_reported_zero_percent_valid(tmp_path, capf
     assert code == 0 and "valid 0.0%" in stdout
     assert stderr.startswith("warning: ") and "no texture" in stderr and str(left) in stderr
     assert not read_validity(mask).any()
-    code, stdout, stderr = run_cade(["register", right, left, "-o", tmp_path / "r.tif", "--max-disp", 8], capfd)
+    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "r.tif", "--max-disp", 8], capfd)
     assert code == 0 and "valid 0.0%" in stdout and "no texture" in stderr
 
 
@@ -277,7 +277,7 @@ def test_register_refuses_values_that_are_not_disparities_of_the_pair(pair, tmp_
     given_map = tmp_path / "huge.npy"
     np.save(given_map, np.full((40, 72), value, np.float32))
     out = tmp_path / "o.tif"
-    code, _, stderr = run_cade(["register", right, left, "-o", out, "--disparity", given_map], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", out, "--disparity", given_map], capfd)
     assert_one_line_error(code, stderr, str(given_map), "beyond", "72 px")
     assert not out.exists()
 
@@ -286,7 +286,7 @@ def test_register_refuses_a_map_without_a_valid_pixel(pair, tmp_path, capfd):
     left, right = pair
     given_map = tmp_path / "empty.pfm"
     write_disparity(given_map, np.full((40, 72), np.nan, np.float32))
-    code, _, stderr = run_cade(["register", right, left, "-o", tmp_path / "o.tif", "--disparity", given_map], capfd)
+    code, _, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "o.tif", "--disparity", given_map], capfd)
     assert_one_line_error(code, stderr, str(given_map), "no valid pixel")
 
 
@@ -496,7 +496,7 @@ def test_same_input_same_bytes_and_parallel_runs_do_not_interfere(pair, tmp_path
         return ["-o", out / f"{tag}.pfm", "--vis", out / f"{tag}_vis.png", "--validity", out / f"{tag}_valid.tif"]
 
     base = [sys.executable, "-m", "cade_cli", "disparity", left, right, "--max-disp", "8"]
-    register = [sys.executable, "-m", "cade_cli", "register", right, left, "--max-disp", "8"]
+    register = [sys.executable, "-m", "cade_cli", "register", "--reference", left, "--moving", right, "--max-disp", "8"]
     processes = [subprocess.Popen([*base, *outputs(tag)], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
                  for tag in ("a", "b")]
     processes += [subprocess.Popen([*register, "-o", out / f"{tag}.tif"], stdout=subprocess.PIPE,

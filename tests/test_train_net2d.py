@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
+pytestmark = pytest.mark.usefixtures("small_validation")  # conftest: a test-sized validation set
 
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402

@@ -93,7 +93,8 @@ def test_a_card_says_how_its_network_takes_its_bands(tmp_path: Path, monkeypatch
 
 @pytest.mark.parametrize("mode, chosen, expected", [("pristine", None, "normalised"), ("cade", None, "cade"),
                                                     ("cade", "cade-floor", "cade-floor")])
-def test_a_run_in_a_mode_exports_a_card_with_that_modes_input(tmp_path: Path, mode, chosen, expected):
+def test_a_run_in_a_mode_exports_a_card_with_that_modes_input(tmp_path: Path, small_validation, mode, chosen,
+                                                              expected):
     pytest.importorskip("torch")
     from cade_cli.train.config import TrainConfig
     from cade_cli.train.export import export_checkpoint

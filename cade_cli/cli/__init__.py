@@ -12,7 +12,7 @@ import sys
 
 import typer
 
-from cade_cli.cli import batch, benchmark, capture, pairs, rigs
+from cade_cli.cli import batch, benchmark, capture, pairs, register, rigs
 from cade_cli.cli.app import app
 from cade_cli.cli.options import DEFAULT_METHOD, METHOD_NAMES
 
@@ -20,7 +20,7 @@ __all__ = ["app", "main", "DEFAULT_METHOD", "METHOD_NAMES"]
 
 # the commands, in the order `cade --help` lists them
 app.command()(pairs.disparity)
-app.command()(pairs.register)
+app.command()(register.register)
 app.command()(rigs.calibrate)
 app.command()(rigs.rectify)
 app.command()(benchmark.benchmark)

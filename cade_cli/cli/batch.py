@@ -12,8 +12,9 @@ from typing import Annotated, Optional
 import typer
 
 from cade_cli.cli.options import (
-    DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption, VisRangeOption,
-    band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note, print_warning,
+    DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PlainProgress, PreprocessOption,
+    VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note,
+    print_warning, progress_line,
 )
 
 
@@ -59,15 +60,17 @@ def batch(
                                                   "(default: the rig's rectified pair, else the first other "
                                                   "camera).")] = None,
     frame: Annotated[
-        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
-                          "the 'original' one (disparity stays in rectified px).")
+        str, typer.Option("--frame", help="With --rig or --fix-vertical: outputs on the 'rectified' reference image, "
+                          "or resampled onto the 'original' one (disparity stays in rectified px).")
     ] = "rectified",
     depth: Annotated[bool, typer.Option("--depth", help="With --rig: also write <name>_depth.tif (float32, metres, "
                                         "NaN unknown).")] = False,
     points: Annotated[bool, typer.Option("--points", help="With --rig: also write <name>_points.ply (binary PLY, "
                                          "metres, reference camera frame).")] = False,
-    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
-                                               "roll the rectification self-check measures before matching.")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll before "
+                                               "matching: with --rig, what the rectification self-check measures; "
+                                               "without, the warp estimated from each pair (as cade rectify "
+                                               "--uncalibrated; recorded in its .cade.json).")] = False,
     strict: Annotated[bool, typer.Option("--strict", help="A pair the pair check finds unrectified, swapped or "
                                          "outside the range searched fails (nothing written for it) instead of "
                                          "warning.")] = False,
@@ -160,15 +163,18 @@ def batch(
     if summary.skipped:
         print_note(f"{summary.skipped} of {len(pairs)} pairs already finished (outputs verified); --force redoes them")
     started = time.perf_counter()
-    shown_notes: set[str] = set()
+    shown_notes: dict[str, int] = {}
+    bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
+    plain = (PlainProgress(lambda: progress_line(progress.tasks[0], "pairs"))
+             if todo and not progress.console.is_terminal else nullcontext())  # a log: a line every 10 s
     try:
-        with progress if todo else nullcontext():
-            bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
+        with progress if todo else nullcontext(), plain:
             for result in engine:
                 results.append(result)
                 summary.add(result)
                 _show_result(progress.console, result, shown_notes)
                 progress.update(bar, advance=1)
+        _show_repeated_notes(shown_notes)
     except KeyboardInterrupt:
         summary.interrupted = True
         print_warning(f"interrupted: {summary.done} pair(s) finished in this run, their outputs complete; rerun the same "
@@ -215,15 +221,17 @@ def _jobs_that_fit(todo: list, jobs: int) -> int:
     return allowed
 
 
-def _show_result(console, result, shown_notes: set[str]) -> None:
-    """Print what one finished pair has to say above the progress bar: its notes (each note
-    once per run), the pair check's warnings, its failure or its range note."""
+def _show_result(console, result, shown_notes: dict[str, int]) -> None:
+    """Print what one finished pair has to say above the progress bar: its notes (each kind of
+    note once per run, counted in ``shown_notes``: the same note about another pair's files is
+    the same kind), the pair check's warnings, its failure or its range note."""
     def say(line: str) -> None:
         console.print(line, highlight=False, markup=False)
 
     for note in result.notes:
-        if note not in shown_notes:
-            shown_notes.add(note)
+        kind = note.replace(str(result.left), "LEFT").replace(str(result.right), "RIGHT")
+        shown_notes[kind] = shown_notes.get(kind, 0) + 1
+        if shown_notes[kind] == 1:
             say(f"note: {note}")
     for warning in result.warnings:  # the pair check's findings
         say(f"warning: {result.output}: {warning}")
@@ -231,6 +239,13 @@ def _show_result(console, result, shown_notes: set[str]) -> None:
         say(f"warning: pair {result.left}, {result.right} failed: {result.error}")
     elif result.range_note is not None:
         say(f"note: {result.output}: {result.range_note}")
+
+
+def _show_repeated_notes(shown_notes: dict[str, int]) -> None:
+    """After the run: how often each note shown once came up (``N`` pairs' files in all)."""
+    for kind, count in shown_notes.items():
+        if count > 1:
+            print_note(f"{count} pairs in this run had the note shown once above: {kind}")
 
 
 def _check_sources(manifest: Path | None, by_pattern: tuple, scheduler: str | None, scheduler_file: Path | None,

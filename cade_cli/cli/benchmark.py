@@ -26,6 +26,9 @@ def benchmark(
     html: Annotated[Optional[Path], typer.Option("--html", help="Write an HTML report: the tables, and per scene and "
                                                  "task the bands, each method's disparity and error pictures "
                                                  "(one self-contained file).")] = None,
+    html_pictures: Annotated[str, typer.Option("--html-pictures", help="With --html: pictures of one task per scene "
+                                               "('scene', its first task; the tables score every task) or of "
+                                               "every task ('all', a much larger page).")] = "scene",
     save_dir: Annotated[Optional[Path], typer.Option("--save-dir", help="Write each disparity (PFM) and error map (PNG) here.")] = None,
     model: Annotated[Optional[str], typer.Option("--model", help="Network(s) of the learned methods, as for `cade "
                                                  "disparity --model`; several, comma-separated, score each learned "
@@ -43,6 +46,12 @@ def benchmark(
     from cade_cli.evaluation.report import left_out, markdown
     from cade_cli.io.atomic import atomic_outputs
 
+    from cade_cli.evaluation.album import PICTURE_SETS
+
+    if html_pictures not in PICTURE_SETS:
+        raise CadeError(f"unknown --html-pictures {html_pictures!r}; choose {' or '.join(PICTURE_SETS)}")
+    if html is None and html_pictures != "scene":
+        raise CadeError("--html-pictures says which pictures --html shows; add --html REPORT.html or drop it")
     if protocol is None:
         protocol = ",".join(get_dataset(dataset).default_protocols)
     for path, suffixes in ((json_file, (".json",)), (report, (".md",)), (html, (".html", ".htm"))):
@@ -55,13 +64,13 @@ def benchmark(
             raise CadeError(f"{option} {value!r} names nothing; give comma-separated names, or leave it out for the default")
     # Every output is checked before the run and staged during it; all appear at the end, or none.
     with atomic_outputs([json_file, report, html], folders=[save_dir]) as staged:
-        with StepBar(None, f"benchmark {dataset}") as bar:  # one step per matcher run
+        with StepBar(None, f"benchmark {dataset}", plain=True, noun="tasks") as bar:  # one step per matcher run
             chosen, matchers = benchmark_matchers(split(methods), model)
             run = run_benchmark(
                 dataset=dataset, data_dir=data_dir, methods=chosen, protocols=split(protocol),
                 preprocess=split(preprocess), scenes=None if scenes is None else split(scenes), jobs=jobs,
                 save_dir=None if save_dir is None else staged[save_dir], matchers=matchers,
-                tile_width=None if html is None else TILE_WIDTH,
+                tile_width=None if html is None else TILE_WIDTH, pictures=html_pictures,
                 on_start=bar.set_total,
                 on_run=lambda done: bar.advance(f"{dataset} {done}"),
             )

@@ -28,9 +28,9 @@ MethodOption = Annotated[
     typer.Option(
         "--method",
         "-m",
-        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), has the lowest error "
-        "of the four on the cross-spectral benchmark and is about 3x faster than census-sgm, the best "
-        "classical one (docs/results.md).",
+        help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), is the most accurate "
+        "on cross-spectral pairs in the project's benchmarks, and faster than census-sgm; census-sgm keeps thin "
+        "structures better (figures: docs/results.md).",
     ),
 ]
 
@@ -202,11 +202,50 @@ def check_output(path: Path, *, suffixes: tuple[str, ...], inputs: tuple[Path, .
             raise CadeError(f"output {path} is also an input; choose another output name")
 
 
+PLAIN_PROGRESS_SECONDS = 10.0
+"""Without a terminal, a long command prints its progress as a plain line on stderr this often (s)."""
+
+
+class PlainProgress:
+    """Progress for logs: while active, a daemon thread prints ``line()`` on stderr every
+    :data:`PLAIN_PROGRESS_SECONDS` (read when it starts), whether or not a step ended meanwhile."""
+
+    def __init__(self, line) -> None:
+        import threading
+
+        self.line, self.stopped = line, threading.Event()
+        self.thread = threading.Thread(target=self._run, name="cade-progress", daemon=True)
+
+    def _run(self) -> None:
+        every = PLAIN_PROGRESS_SECONDS
+        while not self.stopped.wait(every):
+            print(self.line(), file=sys.stderr, flush=True)
+
+    def __enter__(self) -> "PlainProgress":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.stopped.set()
+        self.thread.join()
+
+
+def progress_line(task, noun: str = "steps") -> str:
+    """One plain progress line of a ``rich`` task: what runs, ``i of n`` done, time elapsed."""
+    elapsed = int(task.elapsed or 0)
+    total = "?" if task.total is None else f"{task.total:.0f}"
+    return f"{task.description}: {task.completed:.0f} of {total} {noun} done, {elapsed // 60} min {elapsed % 60:02d} s"
+
+
 class StepBar:
     """A transient progress bar on stderr for one long command, counting its steps (stages, tiles,
-    tasks, matcher runs): what runs now, steps done of all, time elapsed. Shown only when stderr is a terminal."""
+    tasks, matcher runs): what runs now, steps done of all, time elapsed. Shown only when stderr is
+    a terminal; with ``plain`` (the long commands: benchmark, register-array), a log instead gets a
+    :class:`PlainProgress` line every :data:`PLAIN_PROGRESS_SECONDS`."""
 
-    def __init__(self, total: int | None, description: str) -> None:
+    def __init__(self, total: int | None, description: str, *, plain: bool = False, noun: str = "steps") -> None:
+        from contextlib import nullcontext
+
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -215,12 +254,16 @@ class StepBar:
                                  TimeElapsedColumn(), console=console, transient=True,
                                  disable=not console.is_terminal)
         self.task = self.progress.add_task(description, total=total)
+        self.plain = (PlainProgress(lambda: progress_line(self.progress.tasks[0], noun))
+                      if plain and not console.is_terminal else nullcontext())
 
     def __enter__(self) -> "StepBar":
         self.progress.start()
+        self.plain.__enter__()
         return self
 
     def __exit__(self, *exc_info) -> None:
+        self.plain.__exit__(*exc_info)
         self.progress.stop()
 
     def set_total(self, total: int) -> None:

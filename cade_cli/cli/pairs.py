@@ -1,4 +1,4 @@
-"""Commands on one pair of bands: ``cade disparity`` (with or without a rig) and ``cade register``.
+"""``cade disparity``: the disparity of one pair of bands, with or without a rig (``cade register``: its own module).
 """
 
 from __future__ import annotations
@@ -45,6 +45,10 @@ def disparity(
                                      "higher = more trusted, 0 = rejected; keep pixels above a threshold to mask what "
                                      "the matcher is unsure of (README: what each method measures).")
     ] = None,
+    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
+                                         "or outside the range searched (exit 1, nothing written) instead of "
+                                         "warning.")] = False,
+    # the options of rigs and unrectified pairs come last in --help, apart from the everyday ones
     rig_file: Annotated[
         Optional[Path], typer.Option("--rig", help="Rig file (`cade calibrate`): LEFT is its reference camera's "
                                      "image, RIGHT another camera's; the pair is rectified first (docs/rigs.md).")
@@ -52,18 +56,17 @@ def disparity(
     camera: Annotated[Optional[str], typer.Option("--camera", help="With --rig: the camera that took RIGHT (default: "
                                                   "the rig's rectified pair, else the first other camera).")] = None,
     frame: Annotated[
-        str, typer.Option("--frame", help="With --rig: outputs on the 'rectified' reference image, or resampled onto "
-                          "the 'original' one (disparity stays in rectified px).")
+        str, typer.Option("--frame", help="With --rig or --fix-vertical: outputs on the 'rectified' reference image, "
+                          "or resampled onto the 'original' one (disparity stays in rectified px).")
     ] = "rectified",
     depth: Annotated[Optional[Path], typer.Option("--depth", help="With --rig: also write depth, float32 TIFF, "
                                                   "metres, NaN unknown.")] = None,
     points: Annotated[Optional[Path], typer.Option("--points", help="With --rig: also write a point cloud (binary "
                                                    "PLY, metres, reference camera frame, grey from LEFT).")] = None,
-    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="With --rig: correct the vertical offset and "
-                                               "roll the rectification self-check measures before matching.")] = False,
-    strict: Annotated[bool, typer.Option("--strict", help="Refuse a pair the pair check finds unrectified, swapped "
-                                         "or outside the range searched (exit 1, nothing written) instead of "
-                                         "warning.")] = False,
+    fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll before "
+                                               "matching: with --rig, what the rectification self-check measures; "
+                                               "without, the warp estimated from the pair alone (as cade rectify "
+                                               "--uncalibrated; recorded in OUTPUT.rectification.json).")] = False,
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.errors import CadeError
@@ -91,9 +94,8 @@ def disparity(
         raise CadeError(f"--vis and --validity both name {vis}; give them different names")
     if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
         raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
-    rig_only = [option for option, given in (("--camera", camera is not None), ("--frame", frame != "rectified"),
-                ("--depth", depth is not None), ("--points", points is not None), ("--fix-vertical", fix_vertical))
-                if given]
+    rig_only = [option for option, given in (("--camera", camera is not None), ("--depth", depth is not None),
+                ("--points", points is not None), ("--frame", frame != "rectified" and not fix_vertical)) if given]
     if rig_file is not None:
         _disparity_with_rig(
             rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
@@ -106,10 +108,21 @@ def disparity(
                         f"RIG.json or drop {rig_only[0]}")
     left_image, right_image = read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
+    warp, warp_record = None, None
+    if fix_vertical:  # no rig: the warp from the pair alone
+        from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
+        from cade_cli.rigs.outputs import FRAMES
+
+        if frame not in FRAMES:
+            raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
+        warp_record = check_warp_record(output, (left, right))
+        warp = estimate_warp(left_image, right_image)
+        left_image, right_image = warp.rectify(left_image, right_image)
     min_disp, max_disp = resolve_range_options(min_disp, max_disp, left_image, right_image)
     check_disparity_range(output, min_disp, max_disp)  # before any matching: a 16-bit PNG holds [0, 256) px
     with StepBar(3, "checking the pair") as bar:  # check, match (or one step per tile), write
-        pair_check = _check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp, strict=strict)
+        pair_check = check_pair_before_matching(left_image, right_image, min_disp=min_disp, max_disp=max_disp,
+                                                strict=strict)
         bar.advance("matching")
         result = _match_pair(bar, left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
                              preprocess=preprocess, model=model, memory_limit=budget)
@@ -119,16 +132,25 @@ def disparity(
         warn_if_textureless(left, right, left_image, right_image)
         if confidence is not None and result.confidence is None:
             raise CadeError(f"method {method} gives no confidence; drop --confidence")
-        with atomic_outputs([output, vis, validity, confidence]) as staged:  # all outputs appear together, or none
+        unfilled, valid, trust = result.disparity, result.valid, result.confidence
+        if warp is not None and frame == "original":
+            from cade_cli.rigs.uncalibrated import match_in_original_frame
+
+            unfilled, valid, dense, trust = match_in_original_frame(warp, unfilled, valid, dense, trust)
+        with atomic_outputs([output, vis, validity, confidence, warp_record]) as staged:  # all appear, or none
             roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
             write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
-                                disparity=result.disparity, valid=result.valid, confidence=result.confidence,
-                                fill=fill, vis_range=colour_range)
+                                disparity=unfilled, valid=valid, confidence=trust, fill=fill, vis_range=colour_range)
+            if warp is not None:
+                from cade_cli.cli.uncalibrated import write_warp_record
+
+                write_warp_record(staged[warp_record], warp, left=str(left), right=str(right), frame=frame)
     height, width = dense.shape
     print(
         f"{output}: {width}x{height}, {method}+{preprocess}, searched [{min_disp}, {max_disp}], "
         f"disparity {float(dense.min()):.2f}..{float(dense.max()):.2f} px, "
-        f"valid {100.0 * result.valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
+        f"valid {100.0 * valid.mean():.1f}%, fill {fill}, {pair_check.summary()}, {seconds:.2f} s"
+        + (f"; {frame} frame of the uncalibrated {warp.model} rectification ({warp_record})" if warp else "")
     )
 
 
@@ -152,21 +174,22 @@ def _match_pair(bar: StepBar, left_image, right_image, *, method: str, min_disp:
     return result
 
 
-def _check_pair(left_image, right_image, *, min_disp: int, max_disp: int, strict: bool):
+def check_pair_before_matching(left_image, right_image, *, min_disp: int, max_disp: int, strict: bool, roles: str | None = None):
     """Run the pair check (:func:`cade_cli.pair_check.check_pair`) before matching: a
     problem found is a warning, or with ``strict`` an error; returns the check (None for
     a pair the matcher refuses anyway, with its own message: sizes that differ, an
-    impossible range)."""
+    impossible range). ``roles``: how a swapped pair is undone (default: the reference image first)."""
     from cade_cli.errors import CadeError
     from cade_cli.pair_check import check_pair
 
     if left_image.shape != right_image.shape or max_disp < min_disp:
         return None
     found = check_pair(left_image, right_image, min_disp=min_disp, max_disp=max_disp)
+    described = found.describe() if roles is None else found.describe(swap_fix=roles)
     if found.problems and strict:
-        raise CadeError(f"{found.describe()} (--strict)")
+        raise CadeError(f"{described} (--strict)")
     if found.problems:
-        print_warning(found.describe())
+        print_warning(described)
     return found
 
 
@@ -239,96 +262,3 @@ def _disparity_with_rig(rig_file: Path, left: Path, right: Path, *, output: Path
           f"disparity {float(np.nanmin(known)):.2f}..{float(np.nanmax(known)):.2f} px, "
           f"valid {100.0 * framed.valid.mean():.1f}%, fill {fill}, {seconds:.2f} s"
           + (f"; {written} points in {points}" if points is not None else ""))
-
-
-def register(
-    context: typer.Context,
-    moving: Annotated[Path, typer.Argument(help="Band to warp (right view).", show_default=False)],
-    reference: Annotated[Path, typer.Argument(help="Reference band (left view).", show_default=False)],
-    output: Annotated[Path, typer.Option("--output", "-o", help="Float32 TIFF: reference, registered, validity bands.")],
-    disparity_file: Annotated[
-        Optional[Path], typer.Option("--disparity", help="Use this reference-view disparity instead of estimating it "
-                                     "(its invalid markers -- inf, NaN, 0 in PNG -- are not trusted).")
-    ] = None,
-    validity_file: Annotated[
-        Optional[Path], typer.Option("--validity", help="With --disparity: the validity mask `cade disparity "
-                                     "--validity` wrote; only its valid pixels are trusted.")
-    ] = None,
-    method: MethodOption = DEFAULT_METHOD,
-    max_disp: MaxDispAutoOption = None,
-    min_disp: MinDispAutoOption = "0",
-    preprocess: PreprocessOption = "auto",
-    model: ModelOption = None,
-    fill: Annotated[
-        str, typer.Option("--fill", help="Occluded pixels: 'row' (background along the row) or 'none' (NaN).")
-    ] = "row",
-    moving_band: Annotated[Optional[int], typer.Option("--moving-band", min=0, help="0-based band of the moving file.")] = None,
-    reference_band: Annotated[
-        Optional[int], typer.Option("--reference-band", min=0, help="0-based band of the reference file.")
-    ] = None,
-    vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a PNG to judge the registration by: the "
-                                                "reference in magenta, the registered band in green (aligned = grey), "
-                                                "no valid registration tinted blue.")] = None,
-    vis_mode: Annotated[str, typer.Option("--vis-mode", help="With --vis: 'overlay' (magenta / green) or 'checker' "
-                                          "(a checkerboard of the two bands' tiles).")] = "overlay",
-) -> None:
-    """Warp MOVING into the view of REFERENCE and write both as one multi-band TIFF."""
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.io.disparity import read_disparity
-    from cade_cli.io.registered import REGISTRATION_VIS_MODES, write_registration, write_registration_picture
-    from cade_cli.registration import register as register_band
-
-    from cade_cli.errors import CadeError
-
-    inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
-    min_disp, max_disp = parse_range_options(min_disp, max_disp)
-    check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
-    if vis is not None:
-        check_output(vis, suffixes=(".png",), inputs=inputs)
-    if vis_mode not in REGISTRATION_VIS_MODES:
-        raise CadeError(f"unknown --vis-mode {vis_mode!r}; choose {' or '.join(REGISTRATION_VIS_MODES)}")
-    if vis is None and context.get_parameter_source("vis_mode").name != "DEFAULT":
-        raise CadeError("--vis-mode says how --vis draws the registration; add --vis PICTURE.png or drop --vis-mode")
-    if validity_file is not None and disparity_file is None:
-        raise CadeError("--validity needs --disparity (it masks that map); drop it or give the disparity file")
-    if fill not in ("row", "none"):
-        raise CadeError(f"unknown --fill {fill!r}; choose row or none")
-    if disparity_file is not None:
-        estimation = [f"--{name.replace('_', '-')}" for name in ("method", "max_disp", "min_disp", "preprocess", "model")
-                      if context.get_parameter_source(name).name != "DEFAULT"]
-        if estimation:
-            named = " and ".join([", ".join(estimation[:-1]), estimation[-1]] if len(estimation) > 1 else estimation)
-            verb, pronoun = ("apply", "them") if len(estimation) > 1 else ("applies", "it")
-            raise CadeError(f"{named} only {verb} when the disparity is estimated, but --disparity gives it; drop "
-                            f"{pronoun} or --disparity")
-    else:
-        from cade_cli.matching import get_matcher
-
-        get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
-    reference_image, moving_image = read_pair(
-        reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
-    )
-    started = time.perf_counter()
-    if disparity_file is not None:
-        from cade_cli.io.disparity import read_validity
-
-        trusted = read_validity(validity_file) if validity_file is not None else None
-        result = register_band(moving_image, reference_image, disparity=read_disparity(disparity_file),
-                               disparity_valid=trusted, fill=fill, disparity_name=str(disparity_file))
-        source = f"disparity from {disparity_file}" + (f", validity from {validity_file}" if trusted is not None else "")
-    else:
-        min_disp, max_disp = resolve_range_options(min_disp, max_disp, reference_image, moving_image)
-        with StepBar(1, "matching and warping"):
-            result = register_band(moving_image, reference_image, method=method, max_disp=max_disp,
-                                   min_disp=min_disp, preprocess=preprocess, fill=fill, model=model)
-        from cade_cli.matching import get_matcher
-
-        source = f"{method}+{get_matcher(method).resolve_preprocess(preprocess)} over [{min_disp}, {max_disp}]"
-        warn_if_textureless(reference, moving, reference_image, moving_image)
-    seconds = time.perf_counter() - started
-    with atomic_outputs([output, vis]) as staged:  # all outputs appear together, or none
-        write_registration(staged[output], result)
-        if vis is not None:
-            write_registration_picture(staged[vis], result, mode=vis_mode)
-    height, width = result.reference.shape
-    print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%, {seconds:.2f} s")

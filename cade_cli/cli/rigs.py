@@ -94,19 +94,26 @@ def calibrate(
 
 
 def rectify(
-    rig_file: Annotated[Path, typer.Argument(metavar="RIG", help="Rig file (`cade calibrate` writes one).", show_default=False)],
+    rig_file: Annotated[Path, typer.Argument(metavar="[RIG]", help="Rig file (`cade calibrate` writes one); none "
+                                             "with --uncalibrated.", show_default=False)],
     left: Annotated[Path, typer.Argument(help="Image of the rig's reference camera.", show_default=False)],
-    right: Annotated[Path, typer.Argument(help="Image of the other camera.", show_default=False)],
     output: Annotated[tuple[Path, Path], typer.Option("--output", "-o", help="The rectified left and right image: "
                                                       ".png (8 bits) or .tif (float32).", show_default=False)],
+    right: Annotated[Optional[Path], typer.Argument(help="Image of the other camera.", show_default=False)] = None,
     camera: Annotated[Optional[str], typer.Option("--camera", help="The rig's camera that took RIGHT (default: the "
                                                   "one in the rig's rectification, else the first other camera).")] = None,
     epipolar: Annotated[Optional[Path], typer.Option("--epipolar", help="Also write the pair side by side with "
                                                      "horizontal lines (PNG).")] = None,
     fix_vertical: Annotated[bool, typer.Option("--fix-vertical", help="Correct the vertical offset and roll the "
                                                "self-check measures in the rectified right image.")] = False,
+    uncalibrated: Annotated[bool, typer.Option("--uncalibrated", help="No rig: `cade rectify --uncalibrated LEFT "
+                                               "RIGHT -o L R` estimates the warp from feature matches between the "
+                                               "bands (a vertical offset and rotation, or a full uncalibrated "
+                                               "rectification where the matches support it) and writes it beside "
+                                               "L as L.rectification.json.")] = False,
 ) -> None:
-    """Rectify a pair of a rig's cameras (reference = left) and check the result's vertical alignment."""
+    """Rectify a pair of a rig's cameras (reference = left), or with --uncalibrated a pair alone, and check the result's
+    vertical alignment."""
     import cv2
 
     from cade_cli.errors import CadeError
@@ -117,6 +124,18 @@ def rectify(
     from cade_cli.rigs.rig_file import load_rig
     from cade_cli.rigs.self_check import MIN_CORRECTION_PX, correct_vertical_misalignment, measure_vertical_misalignment
 
+    if uncalibrated:
+        from cade_cli.cli.uncalibrated import rectify_uncalibrated
+
+        if right is not None or camera is not None or fix_vertical:
+            extra = "rig file" if right is not None else "--camera" if camera is not None else "--fix-vertical"
+            raise CadeError(f"--uncalibrated rectifies LEFT RIGHT from the pair alone and takes no {extra}: write "
+                            "cade rectify --uncalibrated LEFT RIGHT -o L_RECT R_RECT")
+        rectify_uncalibrated(rig_file, left, output, epipolar)  # the two files given: LEFT RIGHT
+        return
+    if right is None:
+        raise CadeError("cade rectify takes RIG LEFT RIGHT; without a rig file, add --uncalibrated (the warp from the "
+                        "pair alone)")
     for path in output:
         check_output(path, suffixes=RECTIFIED_IMAGE_SUFFIXES, inputs=(left, right, rig_file))
     if epipolar is not None:
@@ -217,7 +236,8 @@ def register_array(
             print_note(f"{note}; camera {camera.name} uses it")
         bands.append(band)
     started = time.perf_counter()
-    with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras") as bar:
+    with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras", plain=True,
+                 noun="cameras") as bar:
         registration = register_cameras(
             bands, geometry, parallax=not plane_only, method=method, search=search, scale=match_scale,
             preprocess=preprocess, model=model,

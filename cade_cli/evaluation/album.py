@@ -1,9 +1,11 @@
 """The pictures of a benchmark run that the HTML report shows, made where the maps are.
 
 A scene's maps exist only inside the worker that ran it, so the pictures are drawn there
-and come back small: PNG bytes, at most ``width`` px wide, per scene a
-:class:`SceneAlbum` of the ground truth, each task's left and right bands and each
-scored map with its error picture. Disparity pictures of one scene share the colour range
+and come back small: JPEG bytes (:data:`JPEG_QUALITY`), at most ``width`` px wide, per scene a
+:class:`SceneAlbum` of the ground truth, the left and right bands of the task shown (the scene's
+first task, or with ``every_task`` each task) and each of its scored maps with its error picture.
+A disparity picture draws the matcher's rejected pixels black, as its legend says, though the
+map scored is filled: the picture shows the map before the fill. Disparity pictures of one scene share the colour range
 of its ground truth, so that methods compare at a glance
 (:func:`cade_cli.io.match_outputs.disparity_picture`; errors:
 :func:`cade_cli.evaluation.error_maps.error_picture`).
@@ -28,13 +30,18 @@ if TYPE_CHECKING:
     from cade_cli.data import Scene
     from cade_cli.evaluation.loop import Record
 
-TILE_WIDTH = 480
-"""Default width (px) of the report's pictures: two side by side fit a laptop screen."""
+TILE_WIDTH = 360
+"""Default width (px) of the report's pictures: two side by side fit a laptop screen, and a
+map's legend (:data:`~cade_cli.io.pictures.MIN_WIDTH`) fits."""
+JPEG_QUALITY = 80
+"""JPEG quality of the report's pictures: a whole Middlebury 2014 run's page stays one file to mail."""
+PICTURE_SETS = ("scene", "all")
+"""What the report shows pictures of: one task per scene (its first), or every task."""
 
 
 @dataclass
 class SceneAlbum:
-    """One scene's pictures for the HTML report, each a PNG at most ``width`` px wide (a map
+    """One scene's pictures for the HTML report, each a JPEG at most ``width`` px wide (a map
     with its legend at least :data:`~cade_cli.io.pictures.MIN_WIDTH`, for the text to fit).
 
     Attributes:
@@ -48,6 +55,8 @@ class SceneAlbum:
             error picture) of the scored map (:func:`map_key` of its record).
         small_truth: the ground truth shrunk to ``width``, which every error picture is
             measured against (shrunk once per scene, not once per map).
+        every_task: pictures of every task; False: of the first task added only (protocol,
+            degradation, task: :attr:`shown_task`), the others' scores being in the tables.
     """
 
     scene: str
@@ -57,9 +66,11 @@ class SceneAlbum:
     bands: dict[tuple[str, str], tuple[bytes, bytes]] = field(default_factory=dict)
     maps: dict[tuple[str, str, str, str, str], tuple[bytes, bytes]] = field(default_factory=dict)
     small_truth: np.ndarray | None = field(default=None, repr=False, compare=False)
+    every_task: bool = False
+    shown_task: tuple[str, str, str] | None = None
 
     @classmethod
-    def of(cls, scene: Scene, *, width: int = TILE_WIDTH) -> SceneAlbum:
+    def of(cls, scene: Scene, *, width: int = TILE_WIDTH, every_task: bool = False) -> SceneAlbum:
         """An album of ``scene`` holding its ground-truth picture, ready for :meth:`add`."""
         if width < 1:
             raise ValueError(f"a picture width must be >= 1 px, got {width}")
@@ -68,22 +79,28 @@ class SceneAlbum:
         value_range = ground_truth_range(scene.disparity, max_disp=scene.max_disp)
         small_truth = shrink_map(scene.disparity, width)
         picture = disparity_picture(small_truth, value_range=value_range, invalid_label="black = no ground truth")
-        return cls(scene.name, width, value_range, png(picture), small_truth=small_truth)
+        return cls(scene.name, width, value_range, encode(picture), small_truth=small_truth, every_task=every_task)
 
-    def add(self, record: Record, disparity: np.ndarray, scene: Scene) -> None:
-        """Add the pictures of one scored map (``record``'s ``disparity`` of ``scene``),
-        and the bands of its task if the album has none yet."""
+    def add(self, record: Record, disparity: np.ndarray, scene: Scene, valid: np.ndarray | None = None) -> None:
+        """Add the pictures of one scored map (``record``'s ``disparity`` of ``scene``, filled;
+        ``valid``: where the matcher kept its estimate, the rest drawn black), and the bands of
+        its task if the album has none yet; nothing for a task other than the one shown."""
         from cade_cli.io.match_outputs import disparity_picture
 
+        task = (record.protocol, record.degradation, record.task)
+        if not self.every_task and self.shown_task is not None and task != self.shown_task:
+            return
+        self.shown_task = self.shown_task or task
         band_key = (record.protocol, record.task)
         if band_key not in self.bands:
             left, right = task_images(record.protocol, record.task, scene.left, scene.right)
-            self.bands[band_key] = (png(band_picture(left, self.width)), png(band_picture(right, self.width)))
+            self.bands[band_key] = (encode(band_picture(left, self.width)), encode(band_picture(right, self.width)))
         if self.small_truth is None:
             self.small_truth = shrink_map(scene.disparity, self.width)
         small = shrink_map(disparity, self.width)
-        self.maps[map_key(record)] = (png(disparity_picture(small, value_range=self.value_range)),
-                                      png(error_picture(small, self.small_truth)))
+        kept = small if valid is None else shrink_map(np.where(valid, disparity, np.nan), self.width)
+        self.maps[map_key(record)] = (encode(disparity_picture(kept, value_range=self.value_range)),
+                                      encode(error_picture(small, self.small_truth)))
 
 
 def map_key(record: Record) -> tuple[str, str, str, str, str]:
@@ -133,9 +150,10 @@ def shrink_map(values: np.ndarray, width: int) -> np.ndarray:
     return values[np.ix_(rows, columns)]
 
 
-def png(picture: np.ndarray) -> bytes:
-    """``picture`` ((H, W) grey or (H, W, 3) B, G, R, uint8) encoded as PNG, most compressed."""
-    ok, encoded = cv2.imencode(".png", picture, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+def encode(picture: np.ndarray) -> bytes:
+    """``picture`` ((H, W) grey or (H, W, 3) B, G, R, uint8) encoded as JPEG (:data:`JPEG_QUALITY`,
+    optimised Huffman tables): a quarter of the most compressed PNG's size for these pictures."""
+    ok, encoded = cv2.imencode(".jpg", picture, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY, cv2.IMWRITE_JPEG_OPTIMIZE, 1])
     if not ok:
-        raise ValueError(f"OpenCV could not encode a picture of shape {picture.shape} as PNG")
+        raise ValueError(f"OpenCV could not encode a picture of shape {picture.shape} as JPEG")
     return encoded.tobytes()

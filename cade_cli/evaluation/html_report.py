@@ -6,7 +6,9 @@ each network's name and sha256), the tables of the Markdown report
 that were matched, then per method its disparity picture and its error picture side by
 side, with that map's scores beside them. The pictures come from the run's albums
 (:class:`~cade_cli.evaluation.album.SceneAlbum`, kept by ``run_benchmark(tile_width=...)``)
-and are embedded as base64 PNG data URIs, so the page is one file that can be mailed.
+and are embedded as base64 JPEG data URIs, so the page is one file that can be mailed
+(pictures of one task per scene by default). The best figure of each column of the summary
+tables is marked, and a legend says what each method label, preprocessing and protocol means.
 Plain string formatting; every text from the run is escaped.
 """
 
@@ -40,6 +42,7 @@ figcaption { font-size: 12px; color: #555; } .label { font-size: 13px; } .label 
 .scores td { border: none; padding: 0 6px 0 0; font-size: 12px; }
 .bands div { display: flex; gap: 4px; } .bands img { width: calc(50% - 2px); }
 nav p { margin: 2px 0; } nav a { margin-right: 8px; white-space: nowrap; }
+td.best { font-weight: 700; background: #e6f4e6; } dl.legend dt { font-weight: 600; } dl.legend dd { margin: 0 0 4px 16px; }
 """
 """The page's CSS; ``TILE`` stands for the widest picture's width in px; a scene's section
 sets ``--tile`` to its own pictures' width, so that its columns fit them."""
@@ -68,7 +71,7 @@ def html_report(run: BenchmarkRun, *, command: str | None = None, created: datet
         "<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
         f"<title>cade benchmark: {dataset}</title>", f"<style>{STYLE.replace('TILE', str(width))}</style>",
         "</head><body>", f"<h1>cade benchmark: {dataset}</h1>",
-        header(run, command=command, created=created), tables(run), pictures(run, width=width),
+        header(run, command=command, created=created), tables(run), legend(run), pictures(run, width=width),
         "</body></html>",
     ]
     return "\n".join(parts) + "\n"
@@ -104,12 +107,61 @@ def header(run: BenchmarkRun, *, command: str | None, created: datetime) -> str:
 
 
 def tables(run: BenchmarkRun) -> str:
-    """The summary tables of the Markdown report (means over scenes and tasks)."""
-    parts = [html_table(title(run, pixels), *table(run, pixels)) for pixels in pixel_sets(run)]
+    """The summary tables of the Markdown report (means over scenes and tasks), the best figure
+    of each column marked (:func:`best_cells`: the lowest; for the confidence's gain, the highest)."""
+    parts = []
+    for pixels in pixel_sets(run):
+        header_cells, rows = table(run, pixels)
+        parts.append(html_table(title(run, pixels), header_cells, rows, best=best_cells(header_cells, rows)))
     confidence = confidence_table(run)
     if confidence is not None:
-        parts.append(html_table(confidence_title(run), *confidence))
-    return '<h2>Results</h2><div class="tables">' + "".join(parts) + "</div>"
+        header_cells, rows = confidence
+        parts.append(html_table(confidence_title(run), header_cells, rows, best=best_cells(header_cells, rows)))
+    return ('<h2>Results</h2><p class="note">Means over scenes and tasks; the best figure of each column is '
+            '<b>bold on green</b> (the lowest error, time or area; the highest gain).</p><div class="tables">'
+            + "".join(parts) + "</div>")
+
+
+def best_cells(header_cells: list[str], rows: list[list[str]]) -> set[tuple[int, int]]:
+    """(row, column) of the best figure of each numeric column: the lowest (errors, seconds,
+    areas), or the highest for a ``gain %`` column; every tie is marked; a column of one row none."""
+    best = set()
+    for column in range(1, len(header_cells)):
+        values = {}
+        for index, cells in enumerate(rows):
+            try:
+                values[index] = float(cells[column])
+            except (ValueError, IndexError):
+                continue
+        values = {index: value for index, value in values.items() if value == value}  # NaN: no figure
+        if len(values) < 2:
+            continue
+        target = (max if header_cells[column].endswith("gain %") else min)(values.values())
+        best |= {(index, column) for index, value in values.items() if value == target}
+    return best
+
+
+def legend(run: BenchmarkRun) -> str:
+    """What the page's labels mean: METHOD + PREPROCESSING, each protocol run, the pictures' colours."""
+    from cade_cli.evaluation.protocols import get_protocol
+
+    meanings = {
+        "none": "the matcher compares the two bands as they are, with its own matching cost.",
+        "cade": "both bands first go through the CADE colour-agnostic transform (METHOD.md), which makes bands "
+                "through different filters look alike; then the matcher runs as with none.",
+        "auto": "each matcher's own default of the two.",
+    }
+    items = [(f"METHOD + {value}", meanings[value]) for value in run.config["preprocess"] if value in meanings]
+    items += [(f"{name.upper()} (protocol)", get_protocol(name).summary) for name in run.config["protocols"]]
+    items += [("R>B and the like", "left band R of the left view matched against band B of the right view."),
+              ("disparity pictures", "Turbo colours over the scene's ground-truth range; black = the matcher "
+                                     "rejected the pixel (the map scored is filled there) or, in the ground "
+                                     "truth, no ground truth."),
+              ("error pictures", "|disparity - ground truth| of the map scored (filled), from 0 px (black) to 8 px "
+                                 "and more (white-hot), as the picture's scale says; dark blue = no ground truth.")]
+    body = "".join(f"<dt>{escape(term)}</dt><dd>{escape(text)}</dd>" for term, text in items)
+    return f'<h2>How to read this page</h2><dl class="legend">{body}</dl>'
+
 
 
 def pictures(run: BenchmarkRun, *, width: int) -> str:
@@ -118,8 +170,12 @@ def pictures(run: BenchmarkRun, *, width: int) -> str:
     header_cells, rows = record_table(run)
     scores = {id(record): row for record, row in zip(run.records, rows)}
     groups: dict[str, dict[tuple[str, str, str], list[Record]]] = {}
+    every_task = all(album.every_task for album in run.albums.values())
     for record in run.records:  # in scene, protocol, method, ... order: group by scene and task
         key = (record.protocol, record.degradation, record.task)
+        album = run.albums.get(record.scene)
+        if album is not None and not album.every_task and key != album.shown_task:
+            continue  # its scores are in the tables; its pictures were not drawn
         groups.setdefault(record.scene, {}).setdefault(key, []).append(record)
     links = "".join(
         f'<p><a href="#{anchor(scene)}"><b>{escape(scene)}</b></a> '
@@ -129,7 +185,9 @@ def pictures(run: BenchmarkRun, *, width: int) -> str:
         "<h2>Pictures</h2>",
         f'<p class="note">Pictures at most {width} px wide (maps downscaled by nearest neighbour, bands by area); '
         "numbers at full resolution. The disparity pictures of a scene share its ground truth's colour range, so "
-        "that methods compare. EPE in px; BMP3, D1 in % of the pixels with ground truth.</p>",
+        "that methods compare. EPE in px; BMP3, D1 in % of the pixels with ground truth. "
+        + ("Pictures of every task." if every_task else "Pictures of one task per scene, its first; every task's "
+           "scores are in the tables (cade benchmark --html-pictures all draws every task).") + "</p>",
         f"<nav>{links}</nav>",
     ]
     for scene, tasks in groups.items():
@@ -143,7 +201,7 @@ def scene_section(scene: str, album: SceneAlbum | None, tasks: dict[tuple[str, s
                   scores: dict[int, list[str]], score_names: list[str]) -> str:
     """One scene, one block per task: the ground truth and the two bands matched, then per
     method its disparity picture (right under the ground truth) and its error picture."""
-    tile = "" if album is None else f' style="--tile: {png_width(album.ground_truth)}px"'
+    tile = "" if album is None else f' style="--tile: {picture_width(album.ground_truth)}px"'
     parts = [f'<section{tile}><h2 id="{anchor(scene)}">{escape(scene)}</h2>']
     for (protocol, degradation, task), records in tasks.items():
         parts.append(f'<h3 id="{anchor(scene, protocol, degradation, task)}">{escape(scene)}: '
@@ -205,22 +263,31 @@ def band_pair(bands: tuple[bytes, bytes], alt: str, names: tuple[str, str]) -> s
             f"<figcaption>left: {escape(names[0])}; right: {escape(names[1])}</figcaption></figure>")
 
 
-def png_width(picture: bytes) -> int:
-    """Width (px) of a PNG, read from its header (IHDR, right after the 8-byte signature)."""
-    return int.from_bytes(picture[16:20], "big")
+def picture_width(picture: bytes) -> int:
+    """Width (px) of an encoded picture (PNG: read from its header; JPEG: decoded)."""
+    if picture[:8] == b"\x89PNG\r\n\x1a\n":
+        return int.from_bytes(picture[16:20], "big")
+    import cv2
+    import numpy as np
+
+    return int(cv2.imdecode(np.frombuffer(picture, np.uint8), cv2.IMREAD_UNCHANGED).shape[1])
 
 
 def image(picture: bytes, alt: str) -> str:
-    """An ``img`` element holding the PNG as a base64 data URI (nothing to fetch)."""
+    """An ``img`` element holding the picture (JPEG or PNG) as a base64 data URI (nothing to fetch)."""
     data = base64.b64encode(picture).decode("ascii")
-    return f'<img src="data:image/png;base64,{data}" alt="{escape(alt)}">'
+    kind = "png" if picture[:4] == b"\x89PNG" else "jpeg"
+    return f'<img src="data:image/{kind};base64,{data}" alt="{escape(alt)}">'
 
 
-def html_table(caption: str, header: list[str], rows: list[list[str]]) -> str:
+def html_table(caption: str, header: list[str], rows: list[list[str]],
+               best: set[tuple[int, int]] = frozenset()) -> str:
     """A table under its title (wrapped to the table's width), with a header row and formatted
-    cells, all escaped."""
+    cells, all escaped; the cells (row, column) in ``best`` marked ``class="best"``."""
     head = "".join(f"<th>{escape(cell)}</th>" for cell in header)
-    body = "".join("<tr>" + "".join(f"<td>{escape(cell)}</td>" for cell in cells) + "</tr>" for cells in rows)
+    body = "".join("<tr>" + "".join(f'<td class="best">{escape(cell)}</td>' if (index, column) in best
+                                    else f"<td>{escape(cell)}</td>" for column, cell in enumerate(cells)) + "</tr>"
+                   for index, cells in enumerate(rows))
     return (f'<div class="table"><p class="title">{escape(caption)}</p>'
             f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>")
 

@@ -133,6 +133,7 @@ class Plan:
         save_dir: where to write each scored map and its error map, or None.
         tile_width: keep each scene's pictures for the HTML report, at most this many px
             wide (:class:`~cade_cli.evaluation.album.SceneAlbum`); None keeps none.
+        pictures: of one task per scene (``scene``) or of every task (``all``).
     """
 
     dataset: str
@@ -145,6 +146,7 @@ class Plan:
     seed: int = 0
     save_dir: str | None = None
     tile_width: int | None = None
+    pictures: str = "scene"
 
 
 def evaluate_scene(scene: Scene, plan: Plan, *, album: SceneAlbum | None = None,
@@ -185,7 +187,7 @@ def evaluate_scene(scene: Scene, plan: Plan, *, album: SceneAlbum | None = None,
                     protocol if degradation == "none" else f"{protocol}+{degradation}")
                 save_maps(folder, f"{scene.name}_{result.name}", result.disparity, scene.disparity)
             if album is not None:
-                album.add(record, result.disparity, scene)
+                album.add(record, result.disparity, scene, valid=result.valid)
     return records
 
 
@@ -228,7 +230,8 @@ def _load_and_apply(function: Callable[[Scene], T], reader: Dataset, data_dir: s
 
 def _scene_unit(scene: Scene, plan: Plan, on_run: Callable[[str], None] | None = None,
                 ) -> tuple[list[Record], tuple[int, int, int], SceneAlbum | None]:
-    album = None if plan.tile_width is None else SceneAlbum.of(scene, width=plan.tile_width)
+    album = None if plan.tile_width is None else SceneAlbum.of(scene, width=plan.tile_width,
+                                                              every_task=plan.pictures == "all")
     return evaluate_scene(scene, plan, album=album, on_run=on_run), (*scene.disparity.shape, scene.max_disp), album
 
 
@@ -247,6 +250,7 @@ def run_benchmark(
     jobs: int = 1,
     save_dir: Path | None = None,
     tile_width: int | None = None,
+    pictures: str = "scene",
     on_scene_done: Callable[[str, list[Record]], None] | None = None,
     on_start: Callable[[int], None] | None = None,
     on_run: Callable[[str], None] | None = None,
@@ -274,7 +278,8 @@ def run_benchmark(
             map (PNG) are written under ``save_dir/<method>+<preprocess>/<protocol>/``.
         tile_width: when given, the run keeps each scene's pictures (bands, ground truth,
             each scored map and its errors), at most this many px wide, in ``run.albums``
-            for :func:`cade_cli.evaluation.html_report.html_report`.
+            for :func:`cade_cli.evaluation.html_report.html_report`: of each scene's first task
+            (``pictures="scene"``) or of every task (``"all"``).
         on_scene_done: called with the scene name and its records after each scene.
         on_start: called once, before the first, with the number of matcher runs (scene x
             protocol task x method x preprocessing x degradation).
@@ -297,7 +302,7 @@ def run_benchmark(
         preprocess={method: tuple(value for value in per_method.get(method, ()) if takes_preprocess(matcher, value))
                     for method, matcher in chosen.items()},
         tasks=None if tasks is None else tuple(tasks), degradations=tuple(degradations), timing=timing,
-        save_dir=None if save_dir is None else str(save_dir), tile_width=tile_width,
+        save_dir=None if save_dir is None else str(save_dir), tile_width=tile_width, pictures=pictures,
     )
     not_applicable = _not_applicable(plan, per_method)
     if plan.tasks is not None:

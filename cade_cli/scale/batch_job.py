@@ -129,6 +129,12 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
     if left.shape != right.shape:
         raise CadeError(f"{pair.left} is {left.shape[1]}x{left.shape[0]} but {pair.right} is "
                         f"{right.shape[1]}x{right.shape[0]}; a pair's images must have one size")
+    warp = None
+    if options.fix_vertical:  # no rig: the warp from the pair itself
+        from cade_cli.rigs.uncalibrated import estimate_pair_rectification
+
+        warp = estimate_pair_rectification(left, right)
+        left, right = warp.rectify(left, right)
     searched, estimate = resolve_range(left, right, min_disp=options.min_disp, max_disp=options.max_disp)
     check_disparity_range(pair.output, searched.minimum, searched.maximum)  # an auto bound, before matching
     checked = check_pair(left, right, min_disp=searched.minimum, max_disp=searched.maximum)
@@ -143,14 +149,22 @@ def _match(pair: Pair, left, right, notes: list[str]) -> _Matched:
     if options.confidence and result.confidence is None:
         raise CadeError(f"method {options.method} gives no confidence; drop --confidence")
 
-    def write(files: dict[str, Path]) -> None:
-        write_match_outputs(files, dense=densify(result.disparity, result.valid), disparity=result.disparity,
-                            valid=result.valid, confidence=result.confidence, fill=options.fill,
-                            vis_range=options.vis_range)
+    framed = (result.disparity, result.valid, densify(result.disparity, result.valid), result.confidence)
+    if warp is not None and options.frame == "original":
+        from cade_cli.rigs.uncalibrated import match_in_original_frame
 
-    return _Matched((searched.minimum, searched.maximum), _range_note(options, estimate), float(result.valid.mean()),
-                    write, {"tiles": len(plan.tiles), "pair_check": checked.record()},
-                    (checked.describe(),) if checked.problems else ())
+        framed = match_in_original_frame(warp, *framed)
+    unfilled, valid, dense, confidence = framed
+
+    def write(files: dict[str, Path]) -> None:
+        write_match_outputs(files, dense=dense, disparity=unfilled, valid=valid, confidence=confidence,
+                            fill=options.fill, vis_range=options.vis_range)
+
+    facts = {"tiles": len(plan.tiles), "pair_check": checked.record()}
+    if warp is not None:
+        facts["uncalibrated_rectification"] = warp.record()
+    return _Matched((searched.minimum, searched.maximum), _range_note(options, estimate), float(valid.mean()),
+                    write, facts, (checked.describe(),) if checked.problems else ())
 
 
 def _tiled_note(budget: int) -> str:

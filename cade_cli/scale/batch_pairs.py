@@ -52,7 +52,7 @@ class PairOptions:
     ``cade disparity --memory-limit`` (a pair that does not fit it is matched as tiles);
     None: the default, half the memory available when the pair runs. ``rig``: the path of
     a rig file; each pair is then matched as ``cade disparity LEFT RIGHT --rig`` does,
-    with ``camera``, ``frame``, ``fix_vertical`` (:data:`RIG_ONLY`). ``vis``,
+    with ``camera``, ``frame``, ``fix_vertical`` (:data:`RIG_ONLY`; the last two also without, per pair). ``vis``,
     ``validity``, ``confidence``, ``depth``, ``points`` ask for those outputs beside the
     disparity (:data:`SIDE_OUTPUTS`); ``vis_range``: the (min, max) px given the end
     colours of ``vis`` (None: each map's own robust range).
@@ -86,6 +86,7 @@ class PairOptions:
         """Refuse unknown names and impossible combinations before any pair runs (a rig
         file is read here: a bad one, or an unknown ``camera``, is refused now)."""
         from cade_cli.matching import get_matcher
+        from cade_cli.rigs.outputs import FRAMES
 
         matcher = get_matcher(self.method, model=self.model)
         matcher.resolve_preprocess(self.preprocess)
@@ -94,14 +95,15 @@ class PairOptions:
         check_bounds(self.min_disp, self.max_disp)
         if self.vis_range is not None and not self.vis:
             raise CadeError("--vis-range sets the colours of the --vis pictures; add --vis or drop --vis-range")
-        if self.rig is None:
-            given = [name for name in RIG_ONLY if getattr(self, name) != getattr(PairOptions, name)]
+        if self.rig is None:  # --fix-vertical alone: the warp from each pair itself, in either --frame
+            given = [name for name in RIG_ONLY if getattr(self, name) != getattr(PairOptions, name)
+                     and not (self.fix_vertical and name in ("fix_vertical", "frame"))]
             if given:
                 option = "--" + given[0].replace("_", "-")
                 raise CadeError(f"{option} needs --rig (the rig file that says how to rectify the pairs); add --rig "
                                 f"RIG.json or drop {option}")
-            return
-        from cade_cli.rigs.outputs import FRAMES
+            if self.frame in FRAMES:
+                return
         from cade_cli.rigs.pair import rig_pair_rectification
         from cade_cli.rigs.rig_file import load_rig
 
@@ -125,9 +127,10 @@ class PairOptions:
             del options["vis_range"]
         else:
             options["vis_range"] = list(self.vis_range)  # as JSON gives it back
-        if self.rig is None:  # without a rig its options are their defaults: left out
+        if self.rig is None:  # without a rig its options are their defaults (but --fix-vertical's): left out
             for name in ("rig", *RIG_ONLY):
-                del options[name]
+                if not (self.fix_vertical and name in ("fix_vertical", "frame")):
+                    del options[name]
         else:  # the rig by its content, wherever its file lies
             options["rig"] = file_sha256(Path(self.rig))
         if self.method in LEARNED_METHODS:

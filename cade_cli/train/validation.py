@@ -17,6 +17,12 @@ from cade_cli.train.pairs import network_input_of
 from cade_cli.train.textures import TexturePool
 
 
+SYNTHETIC_PAIRS = 24
+"""Generated validation pairs of every run (seeds 10**6 + i)."""
+SYNTHETIC_SIZE = (256, 384)
+"""(height, width) of each generated validation pair, px."""
+
+
 @torch.no_grad()
 def predict(net: torch.nn.Module, left: np.ndarray, right: np.ndarray, device: str) -> np.ndarray:
     """(H, W) float32 disparity (px) of one pair of CADE bands (H, W), any size: padded as the
@@ -28,7 +34,8 @@ def predict(net: torch.nn.Module, left: np.ndarray, right: np.ndarray, device: s
 
 
 def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-    """Fixed validation pairs: 24 generated CS pairs (seed 10**6 + i, never a training
+    """Fixed validation pairs: :data:`SYNTHETIC_PAIRS` generated CS pairs of :data:`SYNTHETIC_SIZE`
+    (seed 10**6 + i, never a training
     seed; made in the run's training mode; only with ``synthetic``) and, when ``data_dir``
     holds them, Middlebury 2014 Q and Middlebury 2005 in the CS tasks R>B and B>R (sets
     ``*-cs``) and, with ``config.validate_rgb``, in the same-band tasks R>R, G>G and B>B
@@ -50,8 +57,10 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     sets = {}
     if synthetic:
         pool = TexturePool([Path(folder) for folder in config.textures])
-        pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, 256, 384, config.levels,
-                                mode=config.training_mode, kind=config.network_input) for i in range(24))
+        height, width = SYNTHETIC_SIZE
+        pairs = (generated_pair(np.random.default_rng([10**6 + i]), pool, height, width, config.levels,
+                                mode=config.training_mode, kind=config.network_input)
+                 for i in range(SYNTHETIC_PAIRS))
         sets["synthetic"] = [(pair.left, pair.right, pair.disparity) for pair in pairs]
     if config.data_dir and Path(config.data_dir).is_dir():
         from cade_cli.data import get_dataset
