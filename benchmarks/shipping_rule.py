@@ -17,13 +17,25 @@ Tolerances. A set's tolerance is the largest relative change of its figure (mean
 two neighbouring checkpoints of one run: a change no larger than one checkpoint to the next already shows
 is noise, not a loss. Measured by
 
-    .venv/bin/python benchmarks/shipping_rule.py tolerances --rows cade:r47500,cade:r53500,cade:c60000 RUN.json...
+    .venv/bin/python benchmarks/shipping_rule.py tolerances --rows cade:r47500,cade:r53500,cade:c60000 \
+        runs/campaign-2d/judged/*.json
 
 on runs/campaign-2d's raw checkpoints of steps 47,500, 53,500 and 60,000 (the end of its cosine; each
 with its own chooser, as benchmarks/candidate_check.sh builds them), models/README.md "Session 25",
 EPE / BMP3 in %, rounded up to the next half per cent, at least 1 %:
 
-    {table}
+    | set | EPE | BMP3 |          | set | EPE | BMP3 |
+    |---|---|---|---|---|---|---|
+    | middlebury05 cs | 1.5 % | 1.0 % |  | flyingthings3d cs | 3.0 % | 2.5 % |
+    | middlebury05 rgb | 2.5 % | 1.0 % |  | flyingthings3d rgb | 2.0 % | 4.0 % |
+    | middlebury14 cs | 4.0 % | 2.0 % |  | driving cs | 2.0 % | 4.5 % |
+    | middlebury14 rgb | 2.0 % | 2.5 % |  | driving rgb | 1.5 % | 1.0 % |
+    | msir-outdoor native | 8.0 % | 38.0 % |  |  |  |  |
+
+    Three checkpoints, two steps between them: a thin sample, so each figure is the larger of the two
+    changes. msir-outdoor's BMP3 is a few per cent of its pixels (2-3 %), so one checkpoint to the next
+    moves it by a third; its EPE is the figure that judges it. The runs are committed in
+    runs/campaign-2d/judged/ (cade-v11, c60000, r53500, r47500 in one run per set; shared CPU).
 
 A set missing from ``TOLERANCES`` is judged by ``DEFAULT_TOLERANCE``. Exit 0 when the candidate ships,
 1 when it does not.
@@ -43,8 +55,16 @@ POOLED = {"kitti2012": "driving", "kitti2015": "driving"}
 """Datasets judged as one set: their records are pooled under this name."""
 REAL_CHECK = "msir-outdoor"
 """The real cross-spectral check (item 3)."""
-TOLERANCES = {
-    # set (dataset or pooled name, protocol): (EPE, BMP3) tolerance as a share; see the docstring.
+TOLERANCES = {  # set (dataset or pooled name, protocol): (EPE, BMP3) tolerance as a share; see the docstring
+    ("driving", "cs"): (0.020, 0.045),
+    ("driving", "rgb"): (0.015, 0.010),
+    ("flyingthings3d", "cs"): (0.030, 0.025),
+    ("flyingthings3d", "rgb"): (0.020, 0.040),
+    ("middlebury05", "cs"): (0.015, 0.010),
+    ("middlebury05", "rgb"): (0.025, 0.010),
+    ("middlebury14", "cs"): (0.040, 0.020),
+    ("middlebury14", "rgb"): (0.020, 0.025),
+    ("msir-outdoor", "native"): (0.080, 0.380),
 }
 DEFAULT_TOLERANCE = (0.03, 0.03)
 """A set whose spread was never measured keeps Accuracy III's 3 %."""
