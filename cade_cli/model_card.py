@@ -88,9 +88,15 @@ class ModelCard:
     """Px of image around a pixel that move the network's estimate there (the card's
     ``context_px``; :data:`DEFAULT_CONTEXT_PX` for cards without it): the collar of a tiled
     window (:func:`cade_cli.scale.windows.method_collar`)."""
+    test_time: tuple[str, ...] = ()
+    """Extra network passes fused with the plain one (:data:`TEST_TIME_AUGMENTATIONS`, the card's
+    ``test_time_augmentation``): ``vertical-flip`` matches the pair turned upside down, which keeps
+    its rows and disparities but gives the network other context above and below each pixel
+    (:meth:`cade_cli.matching.network.NetworkStage.estimate`). Empty: one pass."""
 
 
 RUNTIME_REFINEMENTS = ("rank-sgbm", "none")
+TEST_TIME_AUGMENTATIONS = ("vertical-flip",)
 
 
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
@@ -143,7 +149,11 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         context = int(card.get("context_px", DEFAULT_CONTEXT_PX))
         if context < 0:
             raise ValueError(f"context_px {context} is negative")
-        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context)
+        test_time = tuple(card.get("test_time_augmentation", ()))
+        unknown = [name for name in test_time if name not in TEST_TIME_AUGMENTATIONS]
+        if unknown:
+            raise ValueError(f"test_time_augmentation {unknown[0]!r} is not one of {', '.join(TEST_TIME_AUGMENTATIONS)}")
+        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context, test_time)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

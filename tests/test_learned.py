@@ -320,3 +320,39 @@ def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):
         errors[refine] = np.abs(dense(result) - pair.disparity)[pair.reliable]
     assert (errors[True] < 0.5).mean() > (errors[False] < 0.5).mean() + 0.05
     assert errors[True].mean() <= errors[False].mean()
+
+
+def test_two_passes_are_averaged_where_they_agree_and_the_surer_one_is_kept_where_not():
+    first = network.NetworkOutput(np.array([[10.0, 10.0, 10.0]], np.float32), np.array([[0.5, 0.5, 4.0]], np.float32))
+    second = network.NetworkOutput(np.array([[10.4, 20.0, 30.0]], np.float32), np.array([[0.5, 2.0, 0.5]], np.float32))
+    fused = network.fuse_estimates(first, second)
+    # equal uncertainty: the plain mean; 10 px apart: the surer first pass; 20 px apart: the surer second
+    np.testing.assert_allclose(fused.disparity, [[10.2, 10.0, 30.0]], atol=1e-5)
+    np.testing.assert_allclose(fused.uncertainty, [[0.5, 0.5, 0.5]], atol=1e-5)
+    unequal = network.fuse_estimates(first, network.NetworkOutput(np.array([[11.0, 10, 10]], np.float32),
+                                                                  np.array([[1.5, 0.5, 4.0]], np.float32)))
+    assert 10.0 < unequal.disparity[0, 0] < 10.5  # inverse-variance weights lean on the surer pass
+
+
+def test_the_accurate_tier_matches_the_pair_upside_down_too(rng, monkeypatch):
+    """A card with test_time_augmentation vertical-flip runs the network twice, the second time on
+    the flipped bands, and still recovers a rendered disparity; an unknown augmentation is refused."""
+    pair = render_pair(rng, (96, 160), background=(9.3, 0.0))
+    other_band = 1.0 - (0.1 + 0.6 * pair.right**1.8)  # another filter: gamma, gain, inverted contrast
+    passes = []
+    plain_run = network.run_network_outputs
+    monkeypatch.setattr(network, "run_network_outputs",
+                        lambda session, divisor, left, right: passes.append(left.copy()) or plain_run(session, divisor, left, right))
+    result = get_matcher("cade", model="cade-v11-accurate")(pair.left, other_band, max_disp=32)
+    assert read_card("cade-v11-accurate").test_time == ("vertical-flip",) and len(passes) == 2
+    np.testing.assert_array_equal(passes[1], passes[0][::-1])
+    assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
+
+
+def test_an_unknown_test_time_augmentation_is_refused(tmp_path):
+    card = json.loads(model_card.card_path(DEFAULT_MODEL).read_text())
+    card["test_time_augmentation"] = ["mirror"]
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(card))
+    with pytest.raises(CadeError, match="test_time_augmentation 'mirror'"):
+        read_card(path)

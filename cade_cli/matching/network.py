@@ -170,6 +170,25 @@ def run_network(session, divisor: int, left: np.ndarray, right: np.ndarray) -> n
     return run_network_outputs(session, divisor, left, right).disparity
 
 
+FUSE_AGREEMENT_PX = 1.0
+"""Two passes' disparities within this many px (plus their uncertainties) are one surface and
+are averaged; farther apart they are two guesses, and the more certain one is kept."""
+
+
+def fuse_estimates(first: NetworkOutput, second: NetworkOutput) -> NetworkOutput:
+    """One estimate of two network passes over the same pair: where they agree (within
+    :data:`FUSE_AGREEMENT_PX` plus the larger uncertainty) the inverse-variance weighted mean of the
+    disparities, and of the uncertainties with the same weights (so the uncertainty keeps the scale
+    the card's chooser was fitted on); elsewhere the pass with the lower uncertainty."""
+    d1, u1, d2, u2 = first.disparity, first.uncertainty, second.disparity, second.uncertainty
+    w1, w2 = (1.0 / (np.square(u) + np.float32(0.25)) for u in (u1, u2))
+    agree = np.abs(d1 - d2) <= FUSE_AGREEMENT_PX + np.maximum(u1, u2)
+    first_surer = u1 <= u2
+    disparity = np.where(agree, (w1 * d1 + w2 * d2) / (w1 + w2), np.where(first_surer, d1, d2))
+    uncertainty = np.where(agree, (w1 * u1 + w2 * u2) / (w1 + w2), np.where(first_surer, u1, u2))
+    return NetworkOutput(disparity.astype(np.float32), uncertainty.astype(np.float32))
+
+
 @dataclass(frozen=True)
 class NetworkStage:
     """Raw bands and a range -> the network's disparity of the left view at full resolution.
@@ -205,6 +224,10 @@ class NetworkStage:
             left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)
                                      for band in (left_band, right_band))
         network, uncertainty = run_network_outputs(session, card.divisor, left_band, right_band)
+        if "vertical-flip" in card.test_time:  # the pair upside down: the same rows, the same disparities
+            flipped = run_network_outputs(session, card.divisor, left_band[::-1].copy(), right_band[::-1].copy())
+            network, uncertainty = fuse_estimates(NetworkOutput(network, uncertainty),
+                                                  NetworkOutput(flipped.disparity[::-1], flipped.uncertainty[::-1]))
         if factor > 1:
             scale = np.float32(width / left_band.shape[1])
             network, uncertainty = (cv2.resize(output, (width, height), interpolation=cv2.INTER_LINEAR) * scale
