@@ -59,8 +59,6 @@ LONG_FUNCTIONS = {
     # pending: the side outputs' checks (--vis/--validity/--confidence) and the match-and-write
     # block (StepBar ... print) move to two helpers in cli/pairs.py
     "cade_cli/cli/pairs.py:disparity",
-    # pending: the --disparity-against-estimation option checks move to a helper in cli/register.py
-    "cade_cli/cli/register.py:register",
     # pending: reading each camera's band and writing the cube, disparity and picture move to
     # two helpers in cli/rigs.py
     "cade_cli/cli/rigs.py:register_array",
