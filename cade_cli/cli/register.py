@@ -79,8 +79,10 @@ def register(
     )
     started = time.perf_counter()
     warp, warp_record, original_reference = None, None, reference_image
-    if fix_vertical:
-        warp, warp_record, reference_image, moving_image = _fix_vertical(output, inputs, reference_image, moving_image)
+    if fix_vertical:  # the warp from the pair alone
+        from cade_cli.cli.uncalibrated import fix_vertical_alone
+
+        warp, warp_record, reference_image, moving_image = fix_vertical_alone(output, inputs, reference_image, moving_image)
     result, source, pair_check = _register_pair(
         reference, moving, reference_image, moving_image, disparity_file=disparity_file, validity_file=validity_file,
         method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, fill=fill, model=model,
@@ -140,17 +142,6 @@ def _check_estimation_options(context: typer.Context, *, disparity_file: Path | 
         from cade_cli.matching import get_matcher
 
         get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
-
-
-def _fix_vertical(output: Path, inputs: tuple[Path, ...], reference_image, moving_image):
-    """``--fix-vertical``: the warp estimated from the pair alone, where its record goes, and the
-    pair rectified by it: returns (warp, record path, reference image, moving image)."""
-    from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
-
-    warp_record = check_warp_record(output, inputs)
-    warp = estimate_warp(reference_image, moving_image)
-    reference_image, moving_image = warp.rectify(reference_image, moving_image)
-    return warp, warp_record, reference_image, moving_image
 
 
 def _write_register_outputs(output: Path, result, *, vis: Path | None, vis_mode: str, warp, warp_record: Path | None,
