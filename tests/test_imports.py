@@ -56,9 +56,6 @@ LONG_FUNCTIONS = {
     # (progress bar, interruption, the log: try ... finally) moves to a helper in cli/batch.py
     # and it imports BatchSummary, log_document from scale/batch_log.py
     "cade_cli/cli/batch.py:batch",
-    # pending: reading each camera's band and writing the cube, disparity and picture move to
-    # two helpers in cli/rigs.py
-    "cade_cli/cli/rigs.py:register_array",
     # pending: the checks of tasks, protocols and degradations and the run's config dict move to
     # two helpers in evaluation/loop.py
     "cade_cli/evaluation/loop.py:run_benchmark",
