@@ -29,6 +29,7 @@ from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
 from cade_cli.evaluation.error_maps import save_maps
 from cade_cli.evaluation.metrics import METRIC_NAMES, score
 from cade_cli.evaluation.protocols import get_protocol, run_protocol
+from cade_cli.evaluation.records import Record
 from cade_cli.evaluation.timing import Timing, use_threads
 from cade_cli.matching import MATCHERS, PREPROCESS_CHOICES
 
@@ -37,35 +38,6 @@ T = TypeVar("T")
 SUMMARY_GROUPS: dict[str, str] = {
     "method": "methods", "preprocess": "preprocess", "protocol": "protocols", "degradation": "degradations"}
 """Record field a summary can group by -> the config list that orders its values."""
-
-
-@dataclass(frozen=True)
-class Record:
-    """Scores of one scored prediction (one CS task, or the RGB median map).
-
-    ``seconds`` is the matcher's wall time (median of the timed runs; for the RGB median
-    the sum of its ``matcher_runs`` runs); ``degradation`` names what was done to the
-    right band (:mod:`~cade_cli.evaluation.degradations`).
-    """
-
-    dataset: str
-    resolution: str
-    scene: str
-    protocol: str
-    method: str
-    preprocess: str
-    task: str
-    seconds: float
-    matcher_runs: int
-    scores: dict[str, float]
-    degradation: str = "none"
-
-    def to_dict(self) -> dict:
-        """The record as JSON-ready dict; ``degradation`` only when the band was degraded."""
-        record = asdict(self)
-        if self.degradation == "none":
-            del record["degradation"]
-        return record
 
 
 @dataclass
