@@ -53,9 +53,6 @@ LONG_FUNCTIONS = {
     # (progress bar, interruption, the log: try ... finally) moves to a helper in cli/batch.py
     # and it imports BatchSummary, log_document from scale/batch_log.py
     "cade_cli/cli/batch.py:batch",
-    # pending: the checks of tasks, protocols and degradations and the run's config dict move to
-    # two helpers in evaluation/loop.py
-    "cade_cli/evaluation/loop.py:run_benchmark",
 }
 """Functions over :data:`MAX_FUNCTION_LINES`, as ``path:name``: two argued exceptions, and the
 pending ones of modules being edited elsewhere (each with its plan); mended, an entry must go."""
