@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from cade_cli import __version__
+from cade_cli.version import __version__
 
 
 app = typer.Typer(

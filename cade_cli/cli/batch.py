@@ -113,12 +113,8 @@ def batch(
     beside each output, <output>.cade.json); --force redoes them. The exit status is 1 if
     any pair failed. With --captures: a drone flight, one registered cube per capture (docs/drone.md).
     """
-    from contextlib import nullcontext
-
     from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
-    from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import BatchSummary, check_output_ranges, log_document, run_dask, run_local
+    from cade_cli.scale.batch import check_output_ranges, run_dask, run_local
     from cade_cli.scale.batch_job import remove_stale_temporaries
     from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
 
@@ -153,15 +149,30 @@ def batch(
         threads = max(1, (os.cpu_count() or 1) // jobs)
     engine = (run_dask(todo, address=scheduler, scheduler_file=scheduler_file, threads=threads) if cluster
               else run_local(todo, jobs=jobs, threads=threads))
-    summary = BatchSummary(total=len(pairs), skipped=len(results))
     config = {"command": ["cade", *sys.argv[1:]] if sys.argv[1:2] == ["batch"] else None, "engine": engine_name,
               "manifest": None if manifest is None else str(manifest), "left": left, "right": right,
               "output_dir": None if output_dir is None else str(output_dir), "force": force,
               "rig": None if rig_file is None else str(rig_file),
               "options": {key: value for key, value in options.fingerprint().items()}}
+    _run_pairs(todo, results, engine, total=len(pairs), engine_name=engine_name, log=log, config=config)
+
+
+def _run_pairs(todo: list, results: list, engine, *, total: int, engine_name: str, log: Path, config: dict) -> None:
+    """Run ``todo`` on ``engine`` (its results as they come) after the ``results`` of the pairs
+    already finished: the bar (a line every 10 s when stderr is a log), each result shown above it,
+    a warning when interrupted, the log written at the end however the run ends, then the summary
+    line; CadeError when a pair failed."""
+    from contextlib import nullcontext
+
+    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_output
+    from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.scale.batch_log import BatchSummary, log_document
+
+    summary = BatchSummary(total=total, skipped=len(results))
     progress = _progress_bar()
     if summary.skipped:
-        print_note(f"{summary.skipped} of {len(pairs)} pairs already finished (outputs verified); --force redoes them")
+        print_note(f"{summary.skipped} of {total} pairs already finished (outputs verified); --force redoes them")
     started = time.perf_counter()
     shown_notes: dict[str, int] = {}
     bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
@@ -178,7 +189,7 @@ def batch(
     except KeyboardInterrupt:
         summary.interrupted = True
         print_warning(f"interrupted: {summary.done} pair(s) finished in this run, their outputs complete; rerun the same "
-              f"command to go on (finished pairs are skipped); log {log}")
+                      f"command to go on (finished pairs are skipped); log {log}")
         raise
     finally:
         summary.seconds = time.perf_counter() - started

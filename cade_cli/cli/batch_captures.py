@@ -119,8 +119,9 @@ def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict, 
 
     from cade_cli.errors import CadeError
     from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch import BatchSummary, log_document, run_dask, run_local
+    from cade_cli.scale.batch import run_dask, run_local
     from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.scale.batch_log import BatchSummary, log_document
 
     running = (run_dask(todo, address=engine.scheduler, scheduler_file=engine.scheduler_file, threads=engine.threads)
                if engine.cluster else run_local(todo, jobs=engine.jobs, threads=engine.threads))

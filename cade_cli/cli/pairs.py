@@ -70,10 +70,7 @@ def disparity(
 ) -> None:
     """Disparity of LEFT against RIGHT, written to OUTPUT."""
     from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.io.disparity import DISPARITY_SUFFIXES, VALIDITY_SUFFIXES, check_disparity_range
-    from cade_cli.io.match_outputs import write_match_outputs
-    from cade_cli.matching import densify, get_matcher
+    from cade_cli.io.disparity import DISPARITY_SUFFIXES
 
     if fill not in ("row", "none"):
         raise CadeError(f"unknown --fill {fill!r}; choose row or none")
@@ -81,21 +78,7 @@ def disparity(
     colour_range = parse_vis_range(vis_range, vis)
     budget = parse_memory_limit(memory_limit)
     check_output(output, suffixes=DISPARITY_SUFFIXES, inputs=(left, right))
-    if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
-        raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
-                        f"name it .tif or .tiff")
-    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES),
-                                          ("--confidence", confidence, (".tif", ".tiff"))):
-        if side_output is not None:
-            check_output(side_output, suffixes=suffixes, inputs=(left, right))
-            if side_output.resolve() == output.resolve():
-                raise CadeError(f"{option} {side_output} is the same file as --output; give it another name")
-    if vis is not None and validity is not None and vis.resolve() == validity.resolve():
-        raise CadeError(f"--vis and --validity both name {vis}; give them different names")
-    if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
-        raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
-    rig_only = [option for option, given in (("--camera", camera is not None), ("--depth", depth is not None),
-                ("--points", points is not None), ("--frame", frame != "rectified" and not fix_vertical)) if given]
+    _check_side_outputs(output, (left, right), vis=vis, validity=validity, confidence=confidence)
     if rig_file is not None:
         _disparity_with_rig(
             rig_file, left, right, output=output, camera=camera, frame=frame, depth=depth, points=points,
@@ -103,21 +86,78 @@ def disparity(
             model=model, memory_limit=budget, vis=vis, left_band=left_band, right_band=right_band, fill=fill,
             validity=validity, confidence=confidence, vis_range=colour_range, strict=strict)
         return
-    if rig_only:
-        raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
-                        f"RIG.json or drop {rig_only[0]}")
+    _refuse_rig_options(camera=camera, depth=depth, points=points, frame=frame, fix_vertical=fix_vertical)
     left_image, right_image = read_pair(left, right, left_band, right_band)
     started = time.perf_counter()
     warp, warp_record = None, None
     if fix_vertical:  # no rig: the warp from the pair alone
-        from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
-        from cade_cli.rigs.outputs import FRAMES
+        warp, warp_record, left_image, right_image = _fix_vertical_alone(output, (left, right), frame, left_image,
+                                                                         right_image)
+    _match_and_write(left, right, left_image, right_image, output=output, vis=vis, validity=validity,
+                     confidence=confidence, warp=warp, warp_record=warp_record, frame=frame, method=method,
+                     min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, model=model, memory_limit=budget,
+                     fill=fill, vis_range=colour_range, strict=strict, started=started)
 
-        if frame not in FRAMES:
-            raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
-        warp_record = check_warp_record(output, (left, right))
-        warp = estimate_warp(left_image, right_image)
-        left_image, right_image = warp.rectify(left_image, right_image)
+
+def _refuse_rig_options(*, camera, depth, points, frame: str, fix_vertical: bool) -> None:
+    """Without ``--rig``: refuse the options only a rig gives a meaning to."""
+    from cade_cli.errors import CadeError
+
+    rig_only = [option for option, given in (("--camera", camera is not None), ("--depth", depth is not None),
+                ("--points", points is not None), ("--frame", frame != "rectified" and not fix_vertical)) if given]
+    if rig_only:
+        raise CadeError(f"{rig_only[0]} needs --rig (the rig file that says how to rectify the pair); add --rig "
+                        f"RIG.json or drop {rig_only[0]}")
+
+
+def _fix_vertical_alone(output: Path, inputs: tuple[Path, ...], frame: str, left_image, right_image):
+    """``cade disparity --fix-vertical`` without a rig: ``--frame`` checked, then
+    :func:`cade_cli.cli.uncalibrated.fix_vertical_alone` (returns the warp, its record's path, the rectified pair)."""
+    from cade_cli.cli.uncalibrated import fix_vertical_alone
+    from cade_cli.errors import CadeError
+    from cade_cli.rigs.outputs import FRAMES
+
+    if frame not in FRAMES:
+        raise CadeError(f"unknown --frame {frame!r}; choose rectified or original")
+    return fix_vertical_alone(output, inputs, left_image, right_image)
+
+
+def _check_side_outputs(output: Path, inputs: tuple[Path, ...], *, vis: Path | None, validity: Path | None,
+                        confidence: Path | None) -> None:
+    """Refuse a side output of ``cade disparity`` (--vis, --validity, --confidence) of the wrong
+    kind, or named as the disparity or as another side output, before reading anything."""
+    from cade_cli.errors import CadeError
+    from cade_cli.io.disparity import VALIDITY_SUFFIXES
+
+    if confidence is not None and confidence.suffix.lower() not in (".tif", ".tiff"):
+        raise CadeError(f"cannot write --confidence {confidence}: the confidence is a float32 TIFF; "
+                        f"name it .tif or .tiff")
+    for option, side_output, suffixes in (("--vis", vis, (".png",)), ("--validity", validity, VALIDITY_SUFFIXES),
+                                          ("--confidence", confidence, (".tif", ".tiff"))):
+        if side_output is not None:
+            check_output(side_output, suffixes=suffixes, inputs=inputs)
+            if side_output.resolve() == output.resolve():
+                raise CadeError(f"{option} {side_output} is the same file as --output; give it another name")
+    if vis is not None and validity is not None and vis.resolve() == validity.resolve():
+        raise CadeError(f"--vis and --validity both name {vis}; give them different names")
+    if confidence is not None and validity is not None and confidence.resolve() == validity.resolve():
+        raise CadeError(f"--confidence and --validity both name {confidence}; give them different names")
+
+
+def _match_and_write(left: Path, right: Path, left_image, right_image, *, output: Path, vis, validity, confidence,
+                     warp, warp_record, frame: str, method: str, min_disp: int | str, max_disp: int | str | None,
+                     preprocess: str,
+                     model: str | None, memory_limit: int, fill: str, vis_range, strict: bool, started: float) -> None:
+    """`cade disparity` without a rig, once the pair is read (and rectified by ``warp`` with
+    --fix-vertical): resolve the range on the pair (``min_disp``/``max_disp`` as parsed: px or 'auto'),
+    check the pair, match it, write the disparity and the side outputs asked for (all together, or
+    none) and print the one-line summary; ``started``: when the work began."""
+    from cade_cli.errors import CadeError
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.disparity import check_disparity_range
+    from cade_cli.io.match_outputs import write_match_outputs
+    from cade_cli.matching import densify, get_matcher
+
     min_disp, max_disp = resolve_range_options(min_disp, max_disp, left_image, right_image)
     check_disparity_range(output, min_disp, max_disp)  # before any matching: a 16-bit PNG holds [0, 256) px
     with StepBar(3, "checking the pair") as bar:  # check, match (or one step per tile), write
@@ -125,7 +165,7 @@ def disparity(
                                                 strict=strict)
         bar.advance("matching")
         result = _match_pair(bar, left_image, right_image, method=method, min_disp=min_disp, max_disp=max_disp,
-                             preprocess=preprocess, model=model, memory_limit=budget)
+                             preprocess=preprocess, model=model, memory_limit=memory_limit)
         seconds = time.perf_counter() - started
         preprocess = get_matcher(method).resolve_preprocess(preprocess)
         dense = densify(result.disparity, result.valid)
@@ -140,7 +180,7 @@ def disparity(
         with atomic_outputs([output, vis, validity, confidence, warp_record]) as staged:  # all appear, or none
             roles = {"disparity": output, "vis": vis, "validity": validity, "confidence": confidence}
             write_match_outputs({role: staged[path] for role, path in roles.items() if path is not None}, dense=dense,
-                                disparity=unfilled, valid=valid, confidence=trust, fill=fill, vis_range=colour_range)
+                                disparity=unfilled, valid=valid, confidence=trust, fill=fill, vis_range=vis_range)
             if warp is not None:
                 from cade_cli.cli.uncalibrated import write_warp_record
 

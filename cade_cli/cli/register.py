@@ -68,14 +68,46 @@ def register(
 
     Name the bands: cade register --reference LEFT --moving RIGHT -o OUT.tif (LEFT and RIGHT as in cade disparity).
     """
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.io.registered import REGISTRATION_VIS_MODES, write_registration, write_registration_picture
-
-    from cade_cli.errors import CadeError
-
     reference, moving = _register_bands(reference, moving, old_order)
     inputs = tuple(p for p in (moving, reference, disparity_file, validity_file) if p is not None)
     min_disp, max_disp = parse_range_options(min_disp, max_disp)
+    _check_register_options(context, output, inputs, vis=vis, vis_mode=vis_mode, disparity_file=disparity_file,
+                            validity_file=validity_file, fill=fill, fix_vertical=fix_vertical)
+    _check_estimation_options(context, disparity_file=disparity_file, method=method, preprocess=preprocess)
+    reference_image, moving_image = read_pair(
+        reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
+    )
+    started = time.perf_counter()
+    warp, warp_record, original_reference = None, None, reference_image
+    if fix_vertical:  # the warp from the pair alone
+        from cade_cli.cli.uncalibrated import fix_vertical_alone
+
+        warp, warp_record, reference_image, moving_image = fix_vertical_alone(output, inputs, reference_image, moving_image)
+    result, source, pair_check = _register_pair(
+        reference, moving, reference_image, moving_image, disparity_file=disparity_file, validity_file=validity_file,
+        method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, fill=fill, model=model,
+        strict=strict)
+    if warp is not None:
+        from cade_cli.cli.uncalibrated import registration_in_original_frame
+
+        result = registration_in_original_frame(warp, result, original_reference)
+    seconds = time.perf_counter() - started
+    _write_register_outputs(output, result, vis=vis, vis_mode=vis_mode, warp=warp, warp_record=warp_record,
+                            reference=reference, moving=moving)
+    height, width = result.reference.shape
+    checked = "" if pair_check is None else f", {pair_check.summary()}"
+    print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%{checked}, "
+          f"{seconds:.2f} s")
+
+
+def _check_register_options(context: typer.Context, output: Path, inputs: tuple[Path, ...], *, vis: Path | None,
+                            vis_mode: str, disparity_file: Path | None, validity_file: Path | None, fill: str,
+                            fix_vertical: bool) -> None:
+    """Refuse ``cade register``'s outputs and options that do not go together, before reading anything."""
+    from cade_cli.io.registered import REGISTRATION_VIS_MODES
+
+    from cade_cli.errors import CadeError
+
     check_output(output, suffixes=(".tif", ".tiff"), inputs=inputs)
     if vis is not None:
         check_output(vis, suffixes=(".png",), inputs=inputs)
@@ -90,6 +122,14 @@ def register(
     if fix_vertical and disparity_file is not None:
         raise CadeError("--fix-vertical rectifies the pair before its disparity is estimated, but --disparity gives "
                         "it; drop one")
+
+
+def _check_estimation_options(context: typer.Context, *, disparity_file: Path | None, method: str,
+                              preprocess: str) -> None:
+    """With ``--disparity``, refuse the options that only apply when the disparity is estimated;
+    without it, refuse an unknown ``--method`` or ``--preprocess`` before reading anything."""
+    from cade_cli.errors import CadeError
+
     if disparity_file is not None:
         estimation = [f"--{name.replace('_', '-')}" for name in ("method", "max_disp", "min_disp", "preprocess", "model")
                       if context.get_parameter_source(name).name != "DEFAULT"]
@@ -102,27 +142,16 @@ def register(
         from cade_cli.matching import get_matcher
 
         get_matcher(method).resolve_preprocess(preprocess)  # refuse unknown names before reading anything
-    reference_image, moving_image = read_pair(
-        reference, moving, reference_band, moving_band, names=("--reference-band", "--moving-band")
-    )
-    started = time.perf_counter()
-    warp, warp_record, original_reference = None, None, reference_image
-    if fix_vertical:  # the warp from the pair alone
-        from cade_cli.cli.uncalibrated import check_warp_record, estimate_warp
 
-        warp_record = check_warp_record(output, inputs)
-        warp = estimate_warp(reference_image, moving_image)
-        reference_image, moving_image = warp.rectify(reference_image, moving_image)
-    result, source, pair_check = _register_pair(
-        reference, moving, reference_image, moving_image, disparity_file=disparity_file, validity_file=validity_file,
-        method=method, min_disp=min_disp, max_disp=max_disp, preprocess=preprocess, fill=fill, model=model,
-        strict=strict)
-    if warp is not None:
-        from cade_cli.cli.uncalibrated import registration_in_original_frame
 
-        result = registration_in_original_frame(warp, result, original_reference)
-    seconds = time.perf_counter() - started
-    with atomic_outputs([output, vis, warp_record]) as staged:  # all outputs appear together, or none
+def _write_register_outputs(output: Path, result, *, vis: Path | None, vis_mode: str, warp, warp_record: Path | None,
+                            reference: Path, moving: Path) -> None:
+    """Write the registration TIFF, and the --vis picture and the --fix-vertical warp record when
+    asked: all together, or none (:func:`~cade_cli.io.atomic.atomic_outputs`)."""
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.registered import write_registration, write_registration_picture
+
+    with atomic_outputs([output, vis, warp_record]) as staged:
         write_registration(staged[output], result)
         if vis is not None:
             write_registration_picture(staged[vis], result, mode=vis_mode)
@@ -130,10 +159,6 @@ def register(
             from cade_cli.cli.uncalibrated import write_warp_record
 
             write_warp_record(staged[warp_record], warp, reference=str(reference), moving=str(moving))
-    height, width = result.reference.shape
-    checked = "" if pair_check is None else f", {pair_check.summary()}"
-    print(f"{output}: {width}x{height}, {source}, fill {fill}, valid {100.0 * result.valid.mean():.1f}%{checked}, "
-          f"{seconds:.2f} s")
 
 
 def _register_bands(reference: Path | None, moving: Path | None, old_order: list[Path] | None) -> tuple[Path, Path]:

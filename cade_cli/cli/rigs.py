@@ -204,12 +204,9 @@ def register_array(
 ) -> None:
     """Register every camera of the array in RIG onto its reference camera: one multi-band cube."""
     from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_outputs
-    from cade_cli.io.disparity import write_disparity
-    from cade_cli.io.images import read_band
     from cade_cli.matching import get_matcher
     from cade_cli.rigs.array import register_array as register_cameras
-    from cade_cli.rigs.array_cube import array_cube, false_colour, write_array_cube
+    from cade_cli.rigs.array_cube import array_cube
     from cade_cli.rigs.array_geometry import array_geometry
     from cade_cli.rigs.rig_file import load_rig
     from cade_cli.scale.range import AUTO
@@ -229,12 +226,7 @@ def register_array(
     order = (geometry.reference, *geometry.cameras)
     channels = None if vis is None else _false_colour_cameras(rig, vis_bands)
     paths = _image_of_each_camera(rig, images)
-    bands = []
-    for camera in order:
-        band, note = read_band(paths[camera.name])
-        if note:
-            print_note(f"{note}; camera {camera.name} uses it")
-        bands.append(band)
+    bands = _read_camera_bands(order, paths)
     started = time.perf_counter()
     with StepBar(len(geometry.cameras), "matching cameras" if not plane_only else "warping cameras", plain=True,
                  noun="cameras") as bar:
@@ -249,7 +241,40 @@ def register_array(
         details.update(method=method, preprocess=get_matcher(method).resolve_preprocess(preprocess),
                        search=[AUTO if bound is None else bound for bound in search], match_scale=match_scale)
     cube = array_cube(registration, details=details)
-    with atomic_outputs([output, disparity_file, vis]) as staged:  # all outputs appear together, or none
+    _write_array_outputs(output, cube, registration, disparity_file=disparity_file, vis=vis, channels=channels)
+    width, height = geometry.size
+    searched = ", ".join(AUTO if bound is None else f"{bound:g}" for bound in search)
+    source = "the rig's plane only" if plane_only else (
+        f"{details['method']}+{details['preprocess']} over [{searched}] px per "
+        f"{1000 * geometry.unit:g} mm of baseline at scale {match_scale:g}")
+    seen = ", ".join(f"{c.name} {100 * v.mean():.0f}%" for c, v in zip(geometry.cameras, registration.valid))
+    print(f"{output}: {width}x{height}, {len(order)} cameras onto {geometry.reference.name}, {source}; valid: {seen}; "
+          f"{seconds:.1f} s")
+
+
+def _read_camera_bands(order, paths: dict[str, Path]) -> list:
+    """The band of each camera of ``order`` (reference first), read from its image in ``paths``
+    (camera name -> file); a note when a colour image is reduced to one band."""
+    from cade_cli.io.images import read_band
+
+    bands = []
+    for camera in order:
+        band, note = read_band(paths[camera.name])
+        if note:
+            print_note(f"{note}; camera {camera.name} uses it")
+        bands.append(band)
+    return bands
+
+
+def _write_array_outputs(output: Path, cube, registration, *, disparity_file: Path | None, vis: Path | None,
+                         channels: list[str] | None) -> None:
+    """Write register-array's cube, and the fused disparity (NaN where no camera voted) and the
+    false-colour picture of ``channels`` when asked: all outputs appear together, or none."""
+    from cade_cli.io.atomic import atomic_outputs
+    from cade_cli.io.disparity import write_disparity
+    from cade_cli.rigs.array_cube import false_colour, write_array_cube
+
+    with atomic_outputs([output, disparity_file, vis]) as staged:
         write_array_cube(staged[output], cube)
         if disparity_file is not None:
             import numpy as np
@@ -260,14 +285,6 @@ def register_array(
             import cv2
 
             cv2.imwrite(str(staged[vis]), false_colour(cube, channels))
-    width, height = geometry.size
-    searched = ", ".join(AUTO if bound is None else f"{bound:g}" for bound in search)
-    source = "the rig's plane only" if plane_only else (
-        f"{details['method']}+{details['preprocess']} over [{searched}] px per "
-        f"{1000 * geometry.unit:g} mm of baseline at scale {match_scale:g}")
-    seen = ", ".join(f"{c.name} {100 * v.mean():.0f}%" for c, v in zip(geometry.cameras, registration.valid))
-    print(f"{output}: {width}x{height}, {len(order)} cameras onto {geometry.reference.name}, {source}; valid: {seen}; "
-          f"{seconds:.1f} s")
 
 
 def _array_bound(text: str, option: str) -> float | None:
@@ -306,6 +323,7 @@ def _image_of_each_camera(rig, images: list[Path]) -> dict[str, Path]:
     if set(by_stem) == set(rig.names):
         return {name: by_stem[name] for name in rig.names}
     return dict(zip(rig.names, images))
+
 
 def array_score(
     cubes: Annotated[list[Path], typer.Argument(metavar="CUBE...", help="Cubes of one array (`cade register-array`), "

@@ -43,6 +43,16 @@ def estimate_warp(left_image: np.ndarray, right_image: np.ndarray):
     return found
 
 
+def fix_vertical_alone(output: Path, inputs: tuple[Path, ...], left_image: np.ndarray, right_image: np.ndarray):
+    """``--fix-vertical`` without a rig (``cade disparity``, ``cade register``): the warp record's path
+    for ``output``, checked writable, the warp estimated from the pair alone, and the pair rectified
+    by it: returns (warp, record path, left image, right image)."""
+    record = check_warp_record(output, inputs)
+    found = estimate_warp(left_image, right_image)
+    left_image, right_image = found.rectify(left_image, right_image)
+    return found, record, left_image, right_image
+
+
 def write_warp_record(path: Path, found, **extra) -> None:
     """Write the warp (:meth:`PairRectification.record`) and ``extra`` fields as JSON to ``path`` itself."""
     path.write_text(json.dumps({**found.record(), **extra}, indent=1) + "\n")

@@ -28,7 +28,7 @@ from cade_cli.evaluation.protocols import get_protocol
 
 if TYPE_CHECKING:
     from cade_cli.data import Scene
-    from cade_cli.evaluation.loop import Record
+    from cade_cli.evaluation.records import Record
 
 TILE_WIDTH = 360
 """Default width (px) of the report's pictures: two side by side fit a laptop screen, and a

@@ -20,10 +20,12 @@ from html import escape
 
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.album import TILE_WIDTH, SceneAlbum, map_key
-from cade_cli.evaluation.loop import BenchmarkRun, Record
+from cade_cli.evaluation.loop import BenchmarkRun
+from cade_cli.evaluation.records import Record
 from cade_cli.evaluation.report import (
     confidence_table, confidence_title, left_out, pixel_sets, record_table, table, title,
 )
+from cade_cli.version import __version__
 
 STYLE = """
 body { font: 14px/1.4 system-ui, sans-serif; color: #222; margin: 12px 16px; max-width: 1248px; }
@@ -79,8 +81,6 @@ def html_report(run: BenchmarkRun, *, command: str | None = None, created: datet
 
 def header(run: BenchmarkRun, *, command: str | None, created: datetime) -> str:
     """The provenance table: version, date, command line, dataset, configuration, models."""
-    from cade_cli import __version__
-
     config = run.config
     resolutions = ", ".join(sorted({record.resolution for record in run.records})) or "?"
     rows = [

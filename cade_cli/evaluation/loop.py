@@ -29,6 +29,7 @@ from cade_cli.evaluation.degradations import DEGRADATIONS, degrade
 from cade_cli.evaluation.error_maps import save_maps
 from cade_cli.evaluation.metrics import METRIC_NAMES, score
 from cade_cli.evaluation.protocols import get_protocol, run_protocol
+from cade_cli.evaluation.records import Record
 from cade_cli.evaluation.timing import Timing, use_threads
 from cade_cli.matching import MATCHERS, PREPROCESS_CHOICES
 
@@ -37,35 +38,6 @@ T = TypeVar("T")
 SUMMARY_GROUPS: dict[str, str] = {
     "method": "methods", "preprocess": "preprocess", "protocol": "protocols", "degradation": "degradations"}
 """Record field a summary can group by -> the config list that orders its values."""
-
-
-@dataclass(frozen=True)
-class Record:
-    """Scores of one scored prediction (one CS task, or the RGB median map).
-
-    ``seconds`` is the matcher's wall time (median of the timed runs; for the RGB median
-    the sum of its ``matcher_runs`` runs); ``degradation`` names what was done to the
-    right band (:mod:`~cade_cli.evaluation.degradations`).
-    """
-
-    dataset: str
-    resolution: str
-    scene: str
-    protocol: str
-    method: str
-    preprocess: str
-    task: str
-    seconds: float
-    matcher_runs: int
-    scores: dict[str, float]
-    degradation: str = "none"
-
-    def to_dict(self) -> dict:
-        """The record as JSON-ready dict; ``degradation`` only when the band was degraded."""
-        record = asdict(self)
-        if self.degradation == "none":
-            del record["degradation"]
-        return record
 
 
 @dataclass
@@ -305,37 +277,29 @@ def run_benchmark(
         save_dir=None if save_dir is None else str(save_dir), tile_width=tile_width, pictures=pictures,
     )
     not_applicable = _not_applicable(plan, per_method)
-    if plan.tasks is not None:
-        known = [task.name for name in plan.protocols for task in get_protocol(name).tasks]
-        for task in plan.tasks:
-            lookup(dict.fromkeys(known), task, kind="task")
-    for name in plan.protocols:
-        get_protocol(name).select(plan.tasks)
-    for name in plan.degradations:
-        lookup(DEGRADATIONS, name, kind="degradation")
-    reader = get_dataset(dataset)
-    if reader.grey and set(protocols) - {"native"}:
-        others = ", ".join(name for name in protocols if name != "native")
-        raise CadeError(f"{dataset} pairs are already of two spectral bands, one band per view: only protocol "
-                        f"native applies (not {others}); use --protocol native")
+    reader = _check_selection(plan)
     if scenes:
         reader(Path(data_dir), scenes=scenes)  # checks the names; loads nothing
     scene_names = [name for name in reader.scene_names(Path(data_dir)) if not scenes or name in set(scenes)]
-    config = {
-        "dataset": dataset, "data_dir": str(data_dir), "scenes": scene_names, "methods": list(methods),
-        "protocols": list(protocols), "preprocess": list(dict.fromkeys(v for vs in per_method.values() for v in vs)),
-        "metrics": list(METRIC_NAMES), "tasks": None if tasks is None else list(tasks),
-        "degradations": list(degradations), "timing": asdict(timing), "models": network_models(chosen),
-        "not_applicable": not_applicable,
-    }
-    run = BenchmarkRun(config)
+    run = BenchmarkRun(_run_config(plan, data_dir=data_dir, scenes=scene_names, methods=methods,
+                                   preprocess=per_method, not_applicable=not_applicable))
+    _run_scenes(run, plan, reader, Path(data_dir), scene_names, jobs=jobs, on_start=on_start, on_run=on_run,
+                on_scene_done=on_scene_done)
+    return run
+
+
+def _run_scenes(run: BenchmarkRun, plan: Plan, reader: Dataset, data_dir: Path, scene_names: Sequence[str], *,
+                jobs: int, on_start: Callable[[int], None] | None, on_run: Callable[[str], None] | None,
+                on_scene_done: Callable[[str, list[Record]], None] | None) -> None:
+    """Run ``plan`` on every scene (whole scenes in ``jobs`` worker processes) and add its records,
+    shape and album to ``run``, in scene order; the callbacks as :func:`run_benchmark` says."""
     per_scene = sum(len(get_protocol(name).select(plan.tasks).tasks) for name in plan.protocols) * sum(
         map(len, plan.preprocess.values())) * len(plan.degradations)  # matcher runs
     if on_start is not None:
         on_start(per_scene * len(scene_names))
     live = on_run if jobs == 1 else None  # worker processes report a scene's runs once it is done
     for name, (records, shape, album) in map_scenes(partial(_scene_unit, plan=plan, on_run=live), reader,
-                                                    Path(data_dir), scene_names, jobs=jobs, threads=timing.threads):
+                                                    data_dir, scene_names, jobs=jobs, threads=plan.timing.threads):
         if on_run is not None and live is None:  # a worker's scene: its runs all at once
             for _ in range(per_scene):
                 on_run(f"{name} done")
@@ -345,7 +309,38 @@ def run_benchmark(
             run.albums[name] = album
         if on_scene_done is not None:
             on_scene_done(name, records)
-    return run
+
+
+def _check_selection(plan: Plan) -> Dataset:
+    """Refuse an unknown task, a task subset that leaves a protocol without tasks, an unknown
+    degradation, an unknown dataset or a protocol its pairs cannot run; returns the dataset's reader."""
+    if plan.tasks is not None:
+        known = [task.name for name in plan.protocols for task in get_protocol(name).tasks]
+        for task in plan.tasks:
+            lookup(dict.fromkeys(known), task, kind="task")
+    for name in plan.protocols:
+        get_protocol(name).select(plan.tasks)
+    for name in plan.degradations:
+        lookup(DEGRADATIONS, name, kind="degradation")
+    reader = get_dataset(plan.dataset)
+    if reader.grey and set(plan.protocols) - {"native"}:
+        others = ", ".join(name for name in plan.protocols if name != "native")
+        raise CadeError(f"{plan.dataset} pairs are already of two spectral bands, one band per view: only protocol "
+                        f"native applies (not {others}); use --protocol native")
+    return reader
+
+
+def _run_config(plan: Plan, *, data_dir: Path, scenes: list[str], methods: Sequence[str],
+                preprocess: Mapping[str, Sequence[str]], not_applicable: dict[str, str]) -> dict:
+    """The run's configuration (:attr:`BenchmarkRun.config`): what was asked, as the reports and
+    ``--json`` show it; ``preprocess``: method -> the values asked for it."""
+    return {
+        "dataset": plan.dataset, "data_dir": str(data_dir), "scenes": scenes, "methods": list(methods),
+        "protocols": list(plan.protocols), "preprocess": list(dict.fromkeys(v for vs in preprocess.values() for v in vs)),
+        "metrics": list(METRIC_NAMES), "tasks": None if plan.tasks is None else list(plan.tasks),
+        "degradations": list(plan.degradations), "timing": asdict(plan.timing),
+        "models": network_models(plan.matchers), "not_applicable": not_applicable,
+    }
 
 
 def _not_applicable(plan: Plan, asked: Mapping[str, Sequence[str]]) -> dict[str, str]:

@@ -55,7 +55,6 @@ from cade_cli.allocator import retain_freed_memory
 from cade_cli.errors import CadeError
 from cade_cli.evaluation.timing import use_threads
 from cade_cli.scale.batch_job import remove_stale_temporaries, run_job
-from cade_cli.scale.batch_log import BatchSummary, log_document  # noqa: F401  (cade batch imports them from here)
 from cade_cli.scale.batch_pairs import Pair, PairResult, worker_name
 from cade_cli.scale.memory import BASE_BYTES, available_memory_bytes, matching_memory_bytes
 

@@ -1,0 +1,37 @@
+"""One scored prediction of a benchmark run (:class:`Record`): what the loop
+(:mod:`~cade_cli.evaluation.loop`) returns, the album (:mod:`~cade_cli.evaluation.album`)
+files its pictures under and the reports read.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass(frozen=True)
+class Record:
+    """Scores of one scored prediction (one CS task, or the RGB median map).
+
+    ``seconds`` is the matcher's wall time (median of the timed runs; for the RGB median
+    the sum of its ``matcher_runs`` runs); ``degradation`` names what was done to the
+    right band (:mod:`~cade_cli.evaluation.degradations`).
+    """
+
+    dataset: str
+    resolution: str
+    scene: str
+    protocol: str
+    method: str
+    preprocess: str
+    task: str
+    seconds: float
+    matcher_runs: int
+    scores: dict[str, float]
+    degradation: str = "none"
+
+    def to_dict(self) -> dict:
+        """The record as JSON-ready dict; ``degradation`` only when the band was degraded."""
+        record = asdict(self)
+        if self.degradation == "none":
+            del record["degradation"]
+        return record
