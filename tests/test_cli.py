@@ -320,18 +320,21 @@ def test_an_empty_or_one_value_range_is_refused_before_any_work(tmp_path, rng, c
     disparity, "valid 100 %": disparity and register refuse it before reading the pair, in one line
     that says what to give; a range entirely at or below zero stays allowed."""
     import cade_cli.cli.pairs
+    import cade_cli.cli.register
 
     def no_reading(*args, **kwargs):
         raise AssertionError("read the pair before refusing the range")
 
     left, right = shifted_texture_files(tmp_path, rng, 3)
-    monkeypatch.setattr(cade_cli.cli.pairs, "read_pair", no_reading)
+    for module in (cade_cli.cli.pairs, cade_cli.cli.register):
+        monkeypatch.setattr(module, "read_pair", no_reading)
     out = tmp_path / "d.pfm"
     for command in ("disparity", "register"):
         for bounds, message in ((["--max-disp", 0], "--min-disp 0 and --max-disp 0 leave one disparity"),
                                 (["--min-disp", 7, "--max-disp", 7], "--min-disp 7 and --max-disp 7 leave one"),
                                 (["--min-disp", 4, "--max-disp", 2], "--max-disp 2 is below --min-disp 4")):
-            code, stdout, stderr = run_cade([command, left, right, "-o", out, *bounds], capsys)
+            pair = [left, right] if command == "disparity" else ["--reference", left, "--moving", right]
+            code, stdout, stderr = run_cade([command, *pair, "-o", out, *bounds], capsys)
             assert code != 0 and len(stderr.strip().splitlines()) == 1, stderr
             assert stderr.startswith("cade: error:") and message in stderr
             assert "--max-disp" in stderr and not out.exists()
