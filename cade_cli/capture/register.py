@@ -120,7 +120,7 @@ def read_raw(capture: Capture) -> list[np.ndarray]:
     return raw
 
 
-def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear samples of ``image`` at (u, v) and where they fell inside it."""
     height, width = image.shape
     finite = np.isfinite(u) & np.isfinite(v)
@@ -174,7 +174,7 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     in the common frame."""
     name = capture.bands[index].name
     x, y = grid
-    rotated, _ = _remap(raw_band, *band_pixels(capture, index, x, y))
+    rotated, _ = sample_bilinear(raw_band, *band_pixels(capture, index, x, y))
     if plane_only:
         homography = plane_homography(reference, rotated)
         return BandResult(name, "plane-only", homography, None, None, 0), None, None
@@ -185,7 +185,7 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     if parallax.negligible:
         return BandResult(name, "plane", homography, parallax, None, len(points_reference)), None, None
     across = parallax.across_at(x, y)
-    warped, inside = _remap(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
+    warped, inside = sample_bilinear(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
                                                      y + across * np.float32(parallax.normal[1])))
     search = _search(parallax)
     disparity, trusted = _dense_disparity(reference, warped, inside, name, parallax, search, method=method,
@@ -228,7 +228,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     x, y = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     ref_index = capture.reference
     signal = [np.asarray(image, np.float32) - np.float32(band.black_level) for image, band in zip(raw, capture.bands)]
-    reference, _ = _remap(signal[ref_index], *band_pixels(capture, ref_index, x, y))
+    reference, _ = sample_bilinear(signal[ref_index], *band_pixels(capture, ref_index, x, y))
     reference_features = band_features(reference)
     raw_x, raw_y = np.meshgrid(*(np.arange(n, dtype=np.float32) for n in capture.size))
     px, py = reference_frame_pixels(capture, raw_x, raw_y)  # the output grid (reference raw px) in the common frame
@@ -249,15 +249,15 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
                 u, v = band_pixels(capture, index, px, py, result.homography)
                 seen = np.ones(px.shape, bool)
             else:
-                d, in_frame = _remap(disparity, px, py)
+                d, in_frame = sample_bilinear(disparity, px, py)
                 seen = in_frame & (cv2.remap(trusted.astype(np.uint8), px, py, cv2.INTER_NEAREST) > 0)
                 parallax = result.parallax
                 shift = parallax.across_at(px, py)
                 u, v = band_pixels(capture, index,
                                    px + shift * np.float32(parallax.normal[0]) - d * np.float32(parallax.baseline[0]),
                                    py + shift * np.float32(parallax.normal[1]) - d * np.float32(parallax.baseline[1]))
-            values, inside = _remap(raw[index], u, v)
-            touched, _ = _remap((raw[index] >= level).astype(np.float32), u, v)
+            values, inside = sample_bilinear(raw[index], u, v)
+            touched, _ = sample_bilinear((raw[index] >= level).astype(np.float32), u, v)
             bands.append(values)
             valid.append(inside & seen)
             saturated.append(touched > 0)
