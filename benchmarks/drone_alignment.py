@@ -11,7 +11,8 @@ cube), with the band's raw values resampled once, bilinearly, NaN where not seen
               the product's common pinhole frame (cade_cli.capture.anchors);
   homography  one ECC homography per band on gradient images in that frame (the vendor's
               method, cade_cli.capture.homography), started from the rotations; where ECC
-              fails from there, from a feature-match homography (marked homography*);
+              fails from there, from a feature-match homography (marked homography*), then
+              from register-capture's sparse plane (marked homography**);
   plane-only  register_capture(plane_only=True): `cade register-capture --plane-only`;
   cade        register_capture(): `cade register-capture`, the default method.
 Each is scored per band with cade_cli.capture.alignment (residual shift of gradient-image
@@ -72,7 +73,7 @@ class Registered:
     cpu: float
     failures: dict[str, str] = field(default_factory=dict)
     starts: dict[str, str] = field(default_factory=dict)
-    """Where each band's ECC started: "rotations" or "features"."""
+    """Where each band's ECC started: "rotations", "features" or "plane"."""
     notes: dict[str, str] = field(default_factory=dict)
     """register-capture's path per band (parallax, plane ...)."""
 
@@ -173,7 +174,7 @@ def band_table(scores: dict[str, dict[str, Scored]], results: dict[str, dict[str
             result = results[capture][method]
             for band, a in per_method[method].own.items():
                 c = per_method[method].common[band]
-                shown = method + ("*" if result.starts.get(band) == "features" else "")
+                shown = method + {"features": "*", "plane": "**"}.get(result.starts.get(band, ""), "")
                 shown += f" ({result.notes[band]})" if method == "cade" and band in result.notes else ""
                 lines.append(_row([capture, band, shown, _cell(a.median), _cell(a.p90),
                                    _cell(a.share_over_1px, 100, 1), _cell(a.coverage, 100, 1), str(a.windows),

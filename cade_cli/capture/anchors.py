@@ -15,6 +15,7 @@ import numpy as np
 
 from cade_cli.capture.homography import ecc_homography, feature_homography
 from cade_cli.capture.model import Capture, band_pixels, reference_frame_pixels
+from cade_cli.capture.parallax import plane_homography
 from cade_cli.capture.register import read_raw, sample_bilinear
 from cade_cli.errors import CadeError
 
@@ -28,7 +29,7 @@ class AnchorResult:
             bilinear), NaN where not seen; the reference band is its raw values.
         homographies: band name -> (3, 3) common-frame px of the reference -> of the band
             (rotation removed).
-        starts: band name -> where ECC started: ``"rotations"`` or ``"features"``.
+        starts: band name -> where ECC started: ``"rotations"``, ``"features"`` or ``"plane"``.
         failures: band name -> why the band could not be registered (left out of ``bands``).
     """
 
@@ -63,19 +64,27 @@ def on_reference_grid(capture: Capture, raw: list[np.ndarray], index: int,
 
 def ecc_from_rotations_or_features(reference: np.ndarray, band: np.ndarray) -> tuple[np.ndarray, str]:
     """ECC homography (band px -> reference px, common frame) started from the lens rotations
-    (identity in the common frame); where that fails, from a feature-match homography.
+    (identity in the common frame); where that fails, from a feature-match homography (SIFT,
+    as OpenDroneMap starts); where that fails too, from register-capture's own sparse
+    cross-spectral plane (:func:`~cade_cli.capture.parallax.plane_homography`). Returns it and
+    where it started: ``"rotations"``, ``"features"`` or ``"plane"``.
 
     Raises:
-        CadeError: both fail (the two reasons in one line).
+        CadeError: every start fails (the reasons in one line).
     """
-    try:
-        return ecc_homography(reference, band), "rotations"
-    except CadeError as first:
+    reasons = []
+    for start in ("rotations", "features", "plane"):
         try:
-            start, _ = feature_homography(reference, band)
-            return ecc_homography(reference, band, init=start), "features"
-        except CadeError as second:
-            raise CadeError(f"from the rotations: {first}; from feature matches: {second}") from None
+            if start == "rotations":
+                return ecc_homography(reference, band), start
+            if start == "features":
+                init, _ = feature_homography(reference, band)
+            else:
+                init = np.linalg.inv(plane_homography(np.nan_to_num(reference), np.nan_to_num(band)))
+            return ecc_homography(reference, band, init=init), start
+        except CadeError as error:
+            reasons.append(f"from the {start}: {error}")
+    raise CadeError("; ".join(reasons))
 
 
 def register_anchor(capture: Capture, *, ecc: bool, raw: list[np.ndarray] | None = None) -> AnchorResult:
