@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from cade_cli.capture.model import Capture, band_pixels, load_capture
-from cade_cli.capture.parallax import _direction, band_features, cross_spectral_matches, refine_matches
+from cade_cli.capture.parallax import band_features, cross_spectral_matches, fit_direction, refine_matches
 from cade_cli.capture.register import read_raw, sample_bilinear
 
 CONVENTIONS = {"as read": lambda r: r, "none": lambda r: np.eye(3), "transposed": lambda r: r.T}
@@ -40,7 +40,7 @@ def supported_shares(capture: Capture) -> dict[str, dict[str, float]]:
                 continue
             image, _ = sample_bilinear(signal[index], *band_pixels(turned, index, x, y))
             on_reference, on_band = refine_matches(reference, image, *cross_spectral_matches(features, image))
-            _, _, supporting = _direction(on_reference, on_band - on_reference)
+            _, _, supporting = fit_direction(on_reference, on_band - on_reference)
             shares[label][band.name] = float(supporting.mean())
     return shares
 

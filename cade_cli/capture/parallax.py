@@ -228,7 +228,7 @@ def _best_direction(points: np.ndarray, raw: np.ndarray, angles: np.ndarray,
     return best, fits[:, best], keep[:, best]
 
 
-def _direction(points: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fit_direction(points: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The baseline direction and across field that most displacements (``raw``, (N, 2), of the
     rotation alone, at reference ``points``) fit (:func:`_best_direction`): every direction in
     steps of :data:`DIRECTION_STEP_DEG`, then a tenth of that around the best. Returns
@@ -248,12 +248,12 @@ def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homo
     The lens translations are not in the files, so a scene point is displaced from the
     reference to the band by ``d·(−baseline)`` with d the larger the nearer the point: the
     displacements of the matches lie along one line, up to what the lens rotations leave
-    (the across field). :func:`_direction` finds it; the sign makes d >= 0.
+    (the across field). :func:`fit_direction` finds it; the sign makes d >= 0.
     """
     if len(points_reference) < MIN_MATCHES:
         return Parallax(np.array([1.0, 0.0]), np.zeros(3), 0.0, 0.0, 0.0, len(points_reference))
     raw = points_band - points_reference
-    direction, across, supporting = _direction(points_reference, raw)
+    direction, across, supporting = fit_direction(points_reference, raw)
     if np.median(raw[supporting] @ direction) > 0:
         direction, across = -direction, -across  # the normal turns with the direction
     along = -(raw[supporting] @ direction)
