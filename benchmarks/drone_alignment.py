@@ -24,6 +24,8 @@ twice: on every window the method could score, and on the windows every method c
 from __future__ import annotations
 
 import argparse
+import cProfile
+import pstats
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -84,8 +86,18 @@ def _timed(work):
     return result, time.perf_counter() - wall, time.process_time() - cpu
 
 
-def register(capture: Capture) -> dict[str, Registered]:
-    """Every method of :data:`METHODS` on one capture."""
+def _profiled(work, top: int):
+    """``work()`` under cProfile (CPU time of all threads); its ``top`` stages by cumulative
+    time to stderr."""
+    profile = cProfile.Profile(time.process_time)
+    result = profile.runcall(work)
+    pstats.Stats(profile, stream=sys.stderr).sort_stats("cumulative").print_stats(top)
+    return result
+
+
+def register(capture: Capture, *, profile: int = 0) -> dict[str, Registered]:
+    """Every method of :data:`METHODS` on one capture (``profile`` > 0: cade under cProfile,
+    its top ``profile`` stages to stderr)."""
     raw = read_raw(capture)
     results = {"unaligned": Registered({b.name: np.asarray(r, np.float32) for b, r in zip(capture.bands, raw)},
                                        0.0, 0.0)}
@@ -94,8 +106,9 @@ def register(capture: Capture) -> dict[str, Registered]:
         results[method] = Registered(anchor.bands, wall, cpu, anchor.failures, anchor.starts)
     for method, plane_only in (("plane-only", True), ("cade", False)):
         # load_capture is timed too: register-capture reads the metadata for each capture
-        done, wall, cpu = _timed(lambda: register_capture(load_capture([b.path for b in capture.bands]),
-                                                          plane_only=plane_only))
+        def work(plane_only=plane_only):
+            return register_capture(load_capture([b.path for b in capture.bands]), plane_only=plane_only)
+        done, wall, cpu = _timed(lambda: _profiled(work, profile) if profile and not plane_only else work())
         results[method] = Registered({b.name: image for b, image in zip(capture.bands, done.bands)}, wall, cpu,
                                      notes={r.name: r.path for r in done.results})
     return results
@@ -232,14 +245,14 @@ def write_pictures(folder: Path, capture: Capture, name: str, results: dict[str,
     return written
 
 
-def run(data_dir: Path, *, pictures: Path | None, only: str | None = None) -> str:
+def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profile: int = 0) -> str:
     """Every capture under ``data_dir`` registered by every method and scored (the Markdown
     tables are returned; each capture's times go to stderr as it ends); crops into ``pictures``."""
     scores, results = {}, {}
     for name, capture in find_captures(data_dir).items():
         if only is not None and only not in name:
             continue
-        results[name] = register(capture)
+        results[name] = register(capture, profile=profile)
         scores[name] = score(capture, results[name])
         times = ", ".join(f"{m} {r.seconds:.1f} s wall / {r.cpu:.1f} s CPU"
                           + (f" ({len(r.failures)} bands failed)" if r.failures else "")
@@ -256,12 +269,15 @@ def main() -> None:
     parser.add_argument("--markdown", type=Path, help="write the tables to this file")
     parser.add_argument("--pictures", type=Path, help="folder for the crops (before / homography / cade)")
     parser.add_argument("--only", help="only the captures whose name holds this text")
+    parser.add_argument("--profile", type=int, default=0, metavar="N",
+                        help="profile cade (cProfile, CPU time) and print its top N stages to stderr")
     arguments = parser.parse_args()
     try:
         if not arguments.data_dir.is_dir():
             raise CadeError(f"--data-dir {arguments.data_dir} is not a folder")
         with atomic_outputs([arguments.markdown], folders=[arguments.pictures]) as staged:  # all or nothing
-            text = run(arguments.data_dir, pictures=staged.get(arguments.pictures), only=arguments.only)
+            text = run(arguments.data_dir, pictures=staged.get(arguments.pictures), only=arguments.only,
+                       profile=arguments.profile)
             print(text)
             if arguments.markdown is not None:
                 staged[arguments.markdown].write_text(text + "\n")
