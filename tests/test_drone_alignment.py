@@ -49,7 +49,8 @@ def test_the_captures_and_their_bands_are_found(drone_alignment, micasense):
         assert capture.names() == expected and capture.reference_band.name == "Green"
         assert [band.rig_index for band in capture.bands] == list(range(len(expected)))
         focal = [band.lens.focal for band in capture.bands]
-        assert all(1061 < f < 1062 for f in focal) if name.startswith("sequoia") else all(1440 < f < 1457 for f in focal)
+        low, high = (1061, 1062) if name.startswith("sequoia") else (1440, 1457)
+        assert all(low < f < high for f in focal)
 
 
 def test_lens_rotations_line_up_the_field_capture(micasense):
