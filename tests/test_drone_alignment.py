@@ -1,7 +1,8 @@
 """benchmarks/drone_alignment.py on the real captures (../shared/data/micasense; skipped where
-absent): its private metadata reader finds the four captures and their bands as the data's
-README lists them, and on the nearly planar field capture the lens rotations it reads line
-the bands up far better than the raw files do."""
+absent): it finds the four captures and their bands with the product's reader as the data's
+README lists them; on the nearly planar field capture the lens rotations (the anchors' start,
+on the product's frame and grid) line the bands up far better than the raw files do; every
+method is scored on one grid, and on the windows every method could score."""
 
 from __future__ import annotations
 
@@ -11,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tifffile
 
 from cade_cli.capture.alignment import alignment
-from cade_cli.capture.homography import warp_band
+from cade_cli.capture.anchors import register_anchor
+from cade_cli.capture.model import load_capture
 
 SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "drone_alignment.py"
 
@@ -40,28 +43,39 @@ def test_the_captures_and_their_bands_are_found(drone_alignment, micasense):
     captures = drone_alignment.find_captures(micasense)
     assert sorted(captures) == ["rededge-m-bench/IMG_0001", "rededge-m-bench/IMG_0007", "rededge-m-field/IMG_0008",
                                 "sequoia-tabletop/IMG_180413_080658_0000"]
-    for name, bands in captures.items():
+    for name, capture in captures.items():
         expected = ["Green", "Red", "Red edge", "NIR"] if name.startswith("sequoia") else \
             ["Blue", "Green", "Red", "NIR", "Red edge"]  # RigCameraIndex order (README)
-        assert [band.name for band in bands] == expected
-        assert [band.index for band in bands] == list(range(len(expected)))
-        focal = [band.camera[0, 0] for band in bands]
-        assert all(1061 < f < 1062 for f in focal) if name.startswith("sequoia") else all(1440 < f < 1457 for f in focal)
-        for band in bands:
-            assert np.allclose(band.rotation @ band.rotation.T, np.eye(3))
+        assert capture.names() == expected and capture.reference_band.name == "Green"
+        assert [band.rig_index for band in capture.bands] == list(range(len(expected)))
+        focal = [band.lens.focal for band in capture.bands]
+        low, high = (1061, 1062) if name.startswith("sequoia") else (1440, 1457)
+        assert all(low < f < high for f in focal)
 
 
-def test_lens_rotations_line_up_the_field_capture(drone_alignment, micasense):
-    bands = drone_alignment.find_captures(micasense / "rededge-m-field")["rededge-m-field/IMG_0008"]
-    reference = bands[1]
-    flat_reference, reference_camera = drone_alignment.undistorted(reference)
-    assert np.isnan(flat_reference[0, 0]) and np.isfinite(flat_reference[480, 640])  # alpha = 1: black corners
-    for band in (bands[2],):  # Red: the largest raw offset (~40 px)
-        image, camera = drone_alignment.undistorted(band)
-        homography = drone_alignment.rotation_homography(band, camera, reference, reference_camera)
-        raw = alignment(reference.image, band.image, search=48)
-        rotated = alignment(flat_reference, warp_band(image, homography, image.shape[::-1]), search=48)
-        assert raw.median > 10 and rotated.median < 3 and rotated.windows > 50, (band.name, raw, rotated)
+def test_lens_rotations_line_up_the_field_capture(micasense):
+    capture = load_capture(sorted((micasense / "rededge-m-field").glob("IMG_0008_*.tif")))
+    rotated = register_anchor(capture, ecc=False)
+    reference = rotated.bands["Green"]
+    assert np.isfinite(reference).all()  # the reference band's raw grid: every pixel seen
+    raw = tifffile.imread(capture.bands[2].path).astype(np.float32)  # Red: the largest raw offset (~40 px)
+    before = alignment(reference, raw, search=48)
+    after = alignment(reference, rotated.bands["Red"], search=48)
+    assert before.median > 10 and after.median < 3 and after.windows > 50, (before, after)
+
+
+def test_every_method_is_scored_on_one_grid_and_on_the_common_windows(drone_alignment, micasense):
+    capture = load_capture(sorted((micasense / "rededge-m-field").glob("IMG_0008_*.tif")))
+    results = {"unaligned": drone_alignment.Registered(
+        {b.name: tifffile.imread(b.path).astype(np.float32) for b in capture.bands}, 0.0, 0.0),
+        "rotations": drone_alignment.Registered(register_anchor(capture, ecc=False).bands, 0.0, 0.0)}
+    scored = drone_alignment.score(capture, results)
+    for band in ("Blue", "Red", "NIR", "Red edge"):
+        own = {method: scored[method].own[band] for method in results}
+        common = {method: scored[method].common[band] for method in results}
+        assert len({a.windows for a in common.values()}) == 1  # the same windows for every method
+        assert all(common[m].windows <= own[m].windows for m in results)
+        assert common["rotations"].median < common["unaligned"].median
 
 
 def test_a_folder_without_band_files_is_refused_in_one_line(tmp_path):

@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 import tifffile
 
+from cade_cli.capture.homography import ecc_homography
 from cade_cli.capture.model import Capture, band_pixels, reference_frame_pixels
 from cade_cli.capture.parallax import (Parallax, band_features, cross_spectral_matches, measure_parallax,
                                        plane_from_matches, plane_homography, refine_matches)
@@ -120,7 +121,7 @@ def read_raw(capture: Capture) -> list[np.ndarray]:
     return raw
 
 
-def _remap(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bilinear samples of ``image`` at (u, v) and where they fell inside it."""
     height, width = image.shape
     finite = np.isfinite(u) & np.isfinite(v)
@@ -168,13 +169,33 @@ def _dense_disparity(reference: np.ndarray, warped: np.ndarray, inside: np.ndarr
     return dense, trusted | (small_holes(trusted) & (visible > 0))
 
 
-def _band_geometry(capture, index, raw_band, reference, reference_features, grid, *, plane_only, method,
-                   scale, model) -> tuple[BandResult, np.ndarray | None, np.ndarray | None]:
+PLANE_ECC_ITERATIONS = 10
+"""ECC iterations that refine the cheap path's plane (full size only, from the sparse matches'
+plane): on the nearly planar field capture, 10 took each band's residual shift from 0.08-0.13 px
+to 0.07-0.11 px (the vendor's ECC from the lens rotations: 0.07-0.11) in about 1 s CPU; 30 did
+no better (docs/drone.md)."""
+
+
+def refined_plane(reference: np.ndarray, band: np.ndarray, homography: np.ndarray) -> np.ndarray:
+    """``homography`` (common-frame px of the reference -> of the band, from sparse matches)
+    refined by ECC on the two bands' gradient images (:func:`~cade_cli.capture.homography.ecc_homography`,
+    full size, :data:`PLANE_ECC_ITERATIONS`); ``homography`` itself where ECC fails. NaN: not seen."""
+    try:
+        to_reference = ecc_homography(reference, band, init=np.linalg.inv(homography), levels=1,
+                                      iterations=PLANE_ECC_ITERATIONS)
+    except CadeError:
+        return homography
+    refined = np.linalg.inv(to_reference)
+    return refined / refined[2, 2]
+
+
+def _band_geometry(capture, index, raw_band, reference, reference_features, grid, *, reference_seen, plane_only,
+                   method, scale, model) -> tuple[BandResult, np.ndarray | None, np.ndarray | None]:
     """One band's :class:`BandResult` and, for the parallax path, its dense disparity and trust
     in the common frame."""
     name = capture.bands[index].name
     x, y = grid
-    rotated, _ = _remap(raw_band, *band_pixels(capture, index, x, y))
+    rotated, seen = sample_bilinear(raw_band, *band_pixels(capture, index, x, y))
     if plane_only:
         homography = plane_homography(reference, rotated)
         return BandResult(name, "plane-only", homography, None, None, 0), None, None
@@ -183,9 +204,11 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     homography, _ = plane_from_matches(points_reference, points_band)
     parallax = measure_parallax(points_reference, points_band, homography)
     if parallax.negligible:
+        homography = refined_plane(np.where(reference_seen, reference, np.float32(np.nan)),
+                                   np.where(seen, rotated, np.float32(np.nan)), homography)
         return BandResult(name, "plane", homography, parallax, None, len(points_reference)), None, None
     across = parallax.across_at(x, y)
-    warped, inside = _remap(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
+    warped, inside = sample_bilinear(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
                                                      y + across * np.float32(parallax.normal[1])))
     search = _search(parallax)
     disparity, trusted = _dense_disparity(reference, warped, inside, name, parallax, search, method=method,
@@ -228,7 +251,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     x, y = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     ref_index = capture.reference
     signal = [np.asarray(image, np.float32) - np.float32(band.black_level) for image, band in zip(raw, capture.bands)]
-    reference, _ = _remap(signal[ref_index], *band_pixels(capture, ref_index, x, y))
+    reference, reference_seen = sample_bilinear(signal[ref_index], *band_pixels(capture, ref_index, x, y))
     reference_features = band_features(reference)
     raw_x, raw_y = np.meshgrid(*(np.arange(n, dtype=np.float32) for n in capture.size))
     px, py = reference_frame_pixels(capture, raw_x, raw_y)  # the output grid (reference raw px) in the common frame
@@ -243,21 +266,21 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             sampled.append((raw_x, raw_y) if keep_sampled else None)
         else:
             result, disparity, trusted = _band_geometry(capture, index, signal[index], reference, reference_features,
-                                                        (x, y), plane_only=plane_only, method=method, scale=scale,
-                                                        model=model)
+                                                        (x, y), reference_seen=reference_seen,
+                                                        plane_only=plane_only, method=method, scale=scale, model=model)
             if disparity is None:
                 u, v = band_pixels(capture, index, px, py, result.homography)
                 seen = np.ones(px.shape, bool)
             else:
-                d, in_frame = _remap(disparity, px, py)
+                d, in_frame = sample_bilinear(disparity, px, py)
                 seen = in_frame & (cv2.remap(trusted.astype(np.uint8), px, py, cv2.INTER_NEAREST) > 0)
                 parallax = result.parallax
                 shift = parallax.across_at(px, py)
                 u, v = band_pixels(capture, index,
                                    px + shift * np.float32(parallax.normal[0]) - d * np.float32(parallax.baseline[0]),
                                    py + shift * np.float32(parallax.normal[1]) - d * np.float32(parallax.baseline[1]))
-            values, inside = _remap(raw[index], u, v)
-            touched, _ = _remap((raw[index] >= level).astype(np.float32), u, v)
+            values, inside = sample_bilinear(raw[index], u, v)
+            touched, _ = sample_bilinear((raw[index] >= level).astype(np.float32), u, v)
             bands.append(values)
             valid.append(inside & seen)
             saturated.append(touched > 0)

@@ -20,7 +20,7 @@ def _describe(result) -> str:
     parallax = result.parallax
     direction = f"baseline ({parallax.baseline[0]:+.2f}, {parallax.baseline[1]:+.2f})"
     if result.path == "plane":
-        return f"{result.name}: plane (the matches within +/-{parallax.spread:.2f} px of it)"
+        return f"{result.name}: plane (parallax +/-{parallax.spread:.2f} px beyond the matches' noise)"
     return (f"{result.name}: {direction}, parallax {parallax.low:+.1f}..{parallax.high:+.1f} px, searched "
             f"[{result.search[0]}, {result.search[1]}]")
 
