@@ -303,11 +303,13 @@ def test_refinement_matches_across_a_regional_inversion(rng):
 
 
 def test_a_single_disparity_leaves_nothing_to_refine(rng):
+    """The refinement stage leaves a one-value range's estimate as it is; the matcher itself refuses
+    such a range (issue 40: it would report every pixel valid at the one disparity)."""
     band = rng.random((16, 64)).astype(np.float32)
     estimate = np.full_like(band, 20.0)
     assert np.array_equal(REFINE(band, band, estimate, DisparityRange(20, 20)), estimate)
-    result = CADE(band, band, min_disp=20, max_disp=20)  # the classical matchers accept it too
-    assert np.all(result.disparity[result.valid] == 20)
+    with pytest.raises(CadeError, match=r"\[20, 20\] holds one value"):
+        CADE(band, band, min_disp=20, max_disp=20)
 
 
 def test_refinement_sharpens_the_network_on_a_rendered_pair(rng):
@@ -334,17 +336,22 @@ def test_two_passes_are_averaged_where_they_agree_and_the_surer_one_is_kept_wher
     assert 10.0 < unequal.disparity[0, 0] < 10.5  # inverse-variance weights lean on the surer pass
 
 
-def test_the_accurate_tier_matches_the_pair_upside_down_too(rng, monkeypatch):
-    """A card with test_time_augmentation vertical-flip runs the network twice, the second time on
-    the flipped bands, and still recovers a rendered disparity; an unknown augmentation is refused."""
+def test_a_card_with_test_time_augmentation_matches_the_pair_upside_down_too(rng, monkeypatch, tmp_path):
+    """A card with test_time_augmentation vertical-flip (the shipped network's, in a folder of its own)
+    runs the network twice, the second time on the flipped bands, and still recovers a rendered disparity."""
+    card = json.loads(model_card.card_path(DEFAULT_MODEL).read_text())
+    for variant in card["variants"]:
+        (tmp_path / variant["file"]).symlink_to(model_card.card_path(DEFAULT_MODEL).parent / variant["file"])
+    augmented = tmp_path / "flipped.json"
+    augmented.write_text(json.dumps({**card, "name": "flipped", "test_time_augmentation": ["vertical-flip"]}))
     pair = render_pair(rng, (96, 160), background=(9.3, 0.0))
     other_band = 1.0 - (0.1 + 0.6 * pair.right**1.8)  # another filter: gamma, gain, inverted contrast
     passes = []
     plain_run = network.run_network_outputs
     monkeypatch.setattr(network, "run_network_outputs",
                         lambda session, divisor, left, right: passes.append(left.copy()) or plain_run(session, divisor, left, right))
-    result = get_matcher("cade", model="cade-v11-accurate")(pair.left, other_band, max_disp=32)
-    assert read_card("cade-v11-accurate").test_time == ("vertical-flip",) and len(passes) == 2
+    result = get_matcher("cade", model=str(augmented))(pair.left, other_band, max_disp=32)
+    assert read_card(augmented).test_time == ("vertical-flip",) and len(passes) == 2
     np.testing.assert_array_equal(passes[1], passes[0][::-1])
     assert np.abs(dense(result) - pair.disparity)[pair.reliable].mean() < 1.0
 

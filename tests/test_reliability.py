@@ -208,14 +208,15 @@ def test_an_existing_save_dir_gets_the_new_maps_and_keeps_its_other_files(folder
 
 # --- the issue's table, row by row ---
 
-def test_a_single_disparity_range_works_for_disparity_and_register(pair, tmp_path, capfd):
+def test_a_single_disparity_range_is_refused_by_disparity_and_register(pair, tmp_path, capfd):
+    """A one-value range (--min-disp 4 --max-disp 4) is refused in one line before any work (issue 40:
+    it used to give every pixel that one disparity and report it valid); nothing is written."""
     left, right = pair
-    code, stdout, stderr = run_cade(["disparity", left, right, "-o", tmp_path / "o.pfm", "--min-disp", 4,
-                                     "--max-disp", 4], capfd)
-    assert code == 0 and "searched [4, 4]" in stdout, stderr
-    code, stdout, stderr = run_cade(["register", "--reference", left, "--moving", right, "-o", tmp_path / "o.tif", "--min-disp", 4,
-                                     "--max-disp", 4], capfd)
-    assert code == 0 and "over [4, 4]" in stdout, stderr
+    for command in (["disparity", left, right, "-o", tmp_path / "o.pfm"],
+                    ["register", "--reference", left, "--moving", right, "-o", tmp_path / "o.tif"]):
+        code, _, stderr = run_cade([*command, "--min-disp", 4, "--max-disp", 4], capfd)
+        assert_one_line_error(code, stderr, "--min-disp 4 and --max-disp 4 leave one disparity")
+    assert not list(tmp_path.glob("o.*"))
 
 
 def test_register_refuses_estimation_options_with_a_given_disparity(pair, tmp_path, capfd):
