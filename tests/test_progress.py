@@ -50,7 +50,14 @@ def test_the_plain_line_waits_for_its_interval(capsys):
     assert progress_lines(capsys.readouterr().err) == []
 
 
-def test_benchmark_logs_its_tasks_as_it_goes(folder_dataset, tmp_path, every_20_ms, capsys):
+def test_benchmark_logs_its_tasks_as_it_goes(folder_dataset, tmp_path, every_20_ms, capsys, monkeypatch):
+    advance = options.StepBar.advance
+
+    def slow_advance(bar, *args, **kwargs):  # each matcher run takes 50 ms: warm, the tiny runs take less
+        time.sleep(0.05)
+        return advance(bar, *args, **kwargs)
+
+    monkeypatch.setattr(options.StepBar, "advance", slow_advance)
     code, _, stderr = run_cade(["benchmark", "-d", "folder", "--data-dir", folder_dataset, "--methods", "sgbm",
                                 "--protocol", "cs", "--preprocess", "none"], capsys)
     assert code == 0
@@ -60,7 +67,17 @@ def test_benchmark_logs_its_tasks_as_it_goes(folder_dataset, tmp_path, every_20_
     assert done == sorted(done) and int(lines[-1].group(2)) >= done[-1]
 
 
-def test_batch_logs_its_pairs_and_says_a_repeated_note_once_with_its_count(tmp_path, rng, every_20_ms, capsys):
+def test_batch_logs_its_pairs_and_says_a_repeated_note_once_with_its_count(tmp_path, rng, every_20_ms, capsys,
+                                                                           monkeypatch):
+    import cade_cli.scale.batch
+
+    attempt = cade_cli.scale.batch._attempt
+
+    def slow_attempt(pair):  # each pair takes 50 ms more (one job: pairs run in this process)
+        time.sleep(0.05)
+        return attempt(pair)
+
+    monkeypatch.setattr(cade_cli.scale.batch, "_attempt", slow_attempt)
     for side in ("rgb", "nir"):
         (tmp_path / side).mkdir()
     import cv2
