@@ -184,3 +184,21 @@ def test_jobs_are_lowered_to_what_the_largest_capture_leaves_room_for(flight, tm
                                  capsys)
     assert code == 0 and "--jobs 2 lowered to 1: the largest capture, 5 bands of 96x72" in err
     assert "1 local job(s)" in stdout
+
+
+def test_a_flight_without_a_terminal_logs_its_progress(flight, tmp_path, capsys, monkeypatch):
+    """As the pair batch: without a terminal, a plain line (captures done of all, elapsed) every
+    interval, here 20 ms with each capture made 50 ms slower (one job: they run in this process)."""
+    import re
+    import time
+
+    import cade_cli.scale.batch
+    from cade_cli.cli import options
+
+    attempt = cade_cli.scale.batch._attempt
+    monkeypatch.setattr(cade_cli.scale.batch, "_attempt", lambda job: time.sleep(0.05) or attempt(job))
+    monkeypatch.setattr(options, "PLAIN_PROGRESS_SECONDS", 0.02)
+    code, _, err = run_cade(["batch", "--captures", flight, "-o", tmp_path / "cubes", "--plane-only"], capsys)
+    assert code == 0, err
+    lines = re.findall(r": (\d+) of 3 captures done, \d+ min \d\d s$", err, flags=re.M)
+    assert lines and [int(done) for done in lines] == sorted(int(done) for done in lines)

@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import os
 import sys
-import time
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from cade_cli.cli.options import (
-    DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PlainProgress, PreprocessOption,
+    DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption,
     VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note,
-    print_warning, progress_line,
 )
 
 
@@ -122,7 +120,7 @@ def batch(
     check_flight_sources(captures, flight, left=left, right=right, manifest=manifest, rig=rig_file)
     if captures is not None:
         return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,
-                              engine=Engine(jobs, threads, scheduler, scheduler_file), progress_bar=_progress_bar)
+                              engine=Engine(jobs, threads, scheduler, scheduler_file))
     by_pattern = (left, right, output_dir)
     _check_sources(manifest, by_pattern, scheduler, scheduler_file, jobs)
     cluster = scheduler is not None or scheduler_file is not None
@@ -159,43 +157,18 @@ def batch(
 
 def _run_pairs(todo: list, results: list, engine, *, total: int, engine_name: str, log: Path, config: dict) -> None:
     """Run ``todo`` on ``engine`` (its results as they come) after the ``results`` of the pairs
-    already finished: the bar (a line every 10 s when stderr is a log), each result shown above it,
-    a warning when interrupted, the log written at the end however the run ends, then the summary
-    line; CadeError when a pair failed."""
-    from contextlib import nullcontext
-
+    already finished (:func:`~cade_cli.cli.batch_run.run_jobs`: the bar or a line every 10 s, each
+    result shown above it, the log), then the notes that repeated and the summary line; CadeError
+    when a pair failed."""
+    from cade_cli.cli.batch_run import run_jobs
     from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_log import BatchSummary, log_document
 
-    summary = BatchSummary(total=total, skipped=len(results))
-    progress = _progress_bar()
-    if summary.skipped:
-        print_note(f"{summary.skipped} of {total} pairs already finished (outputs verified); --force redoes them")
-    started = time.perf_counter()
+    if results:
+        print_note(f"{len(results)} of {total} pairs already finished (outputs verified); --force redoes them")
     shown_notes: dict[str, int] = {}
-    bar = progress.add_task(f"batch ({engine_name})", total=len(todo))
-    plain = (PlainProgress(lambda: progress_line(progress.tasks[0], "pairs"))
-             if todo and not progress.console.is_terminal else nullcontext())  # a log: a line every 10 s
-    try:
-        with progress if todo else nullcontext(), plain:
-            for result in engine:
-                results.append(result)
-                summary.add(result)
-                _show_result(progress.console, result, shown_notes)
-                progress.update(bar, advance=1)
-        _show_repeated_notes(shown_notes)
-    except KeyboardInterrupt:
-        summary.interrupted = True
-        print_warning(f"interrupted: {summary.done} pair(s) finished in this run, their outputs complete; rerun the same "
-                      f"command to go on (finished pairs are skipped); log {log}")
-        raise
-    finally:
-        summary.seconds = time.perf_counter() - started
-        remove_stale_temporaries(todo)
-        with atomic_output(log) as temporary:
-            temporary.write_text(log_document(results, summary, config=config))
+    summary = run_jobs(todo, results, engine, total=total, noun="pairs", label=f"batch ({engine_name})", log=log,
+                       config=config, show=lambda console, result: _show_result(console, result, shown_notes))
+    _show_repeated_notes(shown_notes)
     print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} pairs; "
           f"{summary.seconds:.1f} s ({summary.pairs_per_minute:.1f} pairs/min, {engine_name}); log {log}")
     if summary.failed:
@@ -276,18 +249,3 @@ def _check_sources(manifest: Path | None, by_pattern: tuple, scheduler: str | No
         raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; drop --jobs")
 
 
-def _progress_bar():
-    """The batch's bar on stderr (pairs done of those to do, pairs/s, ETA); off when stderr is not a terminal."""
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn, TimeRemainingColumn
-    from rich.text import Text
-
-    class PairRate(ProgressColumn):
-        def render(self, task) -> Text:
-            rate = task.completed / task.elapsed if task.elapsed else 0.0
-            return Text(f"{rate:.2f} pairs/s")
-
-    console = Console(stderr=True, soft_wrap=True)
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), PairRate(),
-                    TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True,
-                    disable=not console.is_terminal)

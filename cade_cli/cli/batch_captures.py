@@ -6,12 +6,10 @@ from __future__ import annotations
 
 import os
 import sys
-import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from cade_cli.cli.options import print_note, print_warning
+from cade_cli.cli.options import print_note
 
 
 @dataclass(frozen=True)
@@ -66,13 +64,12 @@ def check_flight_sources(captures: Path | None, flight: FlightArguments, **pair_
 
 
 def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArguments, *, method: str,
-                   model: str | None, vis: bool, engine: Engine, force: bool, log: Path | None,
-                   progress_bar: Callable) -> None:
+                   model: str | None, vis: bool, engine: Engine, force: bool, log: Path | None) -> None:
     """Register every capture of the flight folder ``captures`` into ``output_dir``, one cube each.
 
     A capture whose cube and record are verified (:func:`cade_cli.scale.batch_captures.is_finished`)
     is skipped unless ``force``; the others run on ``engine`` (:func:`cade_cli.scale.batch.run_local`
-    or :func:`~cade_cli.scale.batch.run_dask`); ``progress_bar()`` makes the bar the pair batch shows.
+    or :func:`~cade_cli.scale.batch.run_dask`) with the pair batch's bar and log (:mod:`cade_cli.cli.batch_run`).
     """
     from cade_cli.cli.options import check_output
     from cade_cli.errors import CadeError
@@ -110,42 +107,23 @@ def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArgume
               "skip_panels": flight.skip_panels, "panels": list(flight.panels), "options": options.fingerprint()}
     if results:
         print_note(f"{len(results)} of {len(jobs)} captures already finished (cubes verified); --force redoes them")
-    _run(todo, results, engine=engine, log=log, config=config, progress_bar=progress_bar)
+    _run(todo, results, engine=engine, log=log, config=config)
 
 
-def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict, progress_bar: Callable) -> None:
-    """Run ``todo`` on ``engine`` with the bar, each result shown as it comes, the log written at the end."""
-    from contextlib import nullcontext
-
+def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict) -> None:
+    """Run ``todo`` on ``engine`` after the ``results`` of the captures already finished
+    (:func:`~cade_cli.cli.batch_run.run_jobs`: the bar or a line every 10 s, each result shown above
+    it, the log), then the summary line; CadeError when a capture failed."""
+    from cade_cli.cli.batch_run import run_jobs
     from cade_cli.errors import CadeError
-    from cade_cli.io.atomic import atomic_output
     from cade_cli.scale.batch import run_dask, run_local
-    from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_log import BatchSummary, log_document
 
     running = (run_dask(todo, address=engine.scheduler, scheduler_file=engine.scheduler_file, threads=engine.threads)
                if engine.cluster else run_local(todo, jobs=engine.jobs, threads=engine.threads))
-    summary = BatchSummary(total=len(todo) + len(results), skipped=len(results))
-    progress, shown = progress_bar(), set()
-    started = time.perf_counter()
-    try:
-        with progress if todo else nullcontext():
-            bar = progress.add_task(f"captures ({engine.name})", total=len(todo))
-            for result in running:
-                results.append(result)
-                summary.add(result)
-                _show(progress.console, result, shown)
-                progress.update(bar, advance=1)
-    except KeyboardInterrupt:
-        summary.interrupted = True
-        print_warning(f"interrupted: {summary.done} capture(s) finished in this run, their cubes complete; rerun the "
-                      f"same command to go on (finished captures are skipped); log {log}")
-        raise
-    finally:
-        summary.seconds = time.perf_counter() - started
-        remove_stale_temporaries(todo)
-        with atomic_output(log) as temporary:
-            temporary.write_text(log_document(results, summary, config=config, entries="captures"))
+    shown: set[str] = set()
+    summary = run_jobs(todo, results, running, total=len(todo) + len(results), noun="captures",
+                       label=f"captures ({engine.name})", log=log, config=config,
+                       show=lambda console, result: _show(console, result, shown))
     per_capture = f"{summary.seconds / summary.done:.1f} s per capture, " if summary.done else ""
     print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} "
           f"captures; {summary.seconds:.1f} s ({per_capture}{engine.name}); log {log}")
