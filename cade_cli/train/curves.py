@@ -15,9 +15,10 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-SETS = ("middlebury05-cs", "middlebury14Q-cs", "middlebury05-rgb", "middlebury14Q-rgb")
+SETS = ("middlebury05-cs", "middlebury14Q-cs", "middlebury05-rgb", "middlebury14Q-rgb", "msir-outdoor")
 """Validation sets drawn (those some run has): the network alone, CS tasks R>B and B>R and
-same-band tasks R>R, G>G, B>B of both Middlebury sets (:func:`~cade_cli.train.validation.validation_sets`)."""
+same-band tasks R>R, G>G, B>B of both Middlebury sets, and the real visible/near-infrared pairs of
+msir-outdoor against their pseudo ground truth (:func:`~cade_cli.train.validation.validation_sets`)."""
 
 
 @dataclass
