@@ -91,11 +91,11 @@ def plot(curves: list[RunCurve], path: Path) -> None:
     for column, name in enumerate(sets):
         for row, (x, metric, label, xlabel) in enumerate(rows):
             axis = axes[row][column]
-            for curve in curves:
+            for index, curve in enumerate(curves):  # one colour per run in every panel
                 points = [p for p in curve.points.get(name, []) if p[x] is not None]
                 if points:
                     axis.plot([p[x] for p in points], [p[metric] for p in points], marker="o", markersize=3,
-                              label=curve.name)
+                              label=curve.name, color=f"C{index % 10}")
             axis.set_title(f"{name}: network alone, {label.split(' ')[0]}", fontsize=9)
             axis.set_ylabel(label)
             axis.set_xlabel(xlabel, fontsize=8)
