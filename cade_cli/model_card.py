@@ -123,6 +123,12 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
 
 
 @functools.lru_cache(maxsize=16)
+def network_sha256(model: str | Path | None = None) -> list[str]:
+    """The sha256 of every network file the card of ``model`` (default: the shipped one) names,
+    sorted: what a batch record stores so that a changed network re-runs its pairs."""
+    return sorted(variant.sha256 for variant in read_card(model or DEFAULT_MODEL).variants)
+
+
 def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
     """The card at ``path``, parsed once per version of the file (``mtime_ns`` and ``size``
     key the cache): the matcher asks for it on every pair and every tile."""
