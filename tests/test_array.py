@@ -412,6 +412,10 @@ def test_register_array_refuses_bad_inputs_in_one_line(array_files, tmp_path, ca
     code, _, err = _run(["register-array", rig, *paths, "-o", tmp_path / "cube.tif", "--plane-only",
                          "--disparity", tmp_path / "d.pfm"], capsys)
     assert code == 1 and "--disparity needs the parallax" in err
+    missing = tmp_path / "gone" / "c8.png"  # an empty range is refused before any image is read
+    code, _, err = _run(["register-array", rig, *paths[:-1], missing, "-o", tmp_path / "cube.tif",
+                         "--min-disp", "4", "--max-disp", "2"], capsys)
+    assert code == 1 and "--max-disp 2 is not above --min-disp 4" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "cube.tif").exists()
 
 

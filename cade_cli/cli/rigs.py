@@ -213,6 +213,9 @@ def register_array(
 
     check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))
     search = (_array_bound(min_disp, "min-disp"), _array_bound(max_disp, "max-disp"))
+    if not plane_only and None not in search and not search[0] < search[1]:  # before any image is read
+        raise CadeError(f"--max-disp {max_disp} is not above --min-disp {min_disp}: nothing to search; "
+                        f"give a --max-disp above --min-disp (px per unit baseline)")
     if disparity_file is not None:
         if plane_only:
             raise CadeError("--disparity needs the parallax estimated; drop it or --plane-only")
