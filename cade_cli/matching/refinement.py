@@ -20,6 +20,7 @@ from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.classical import sgbm_matcher
 from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.network import shift_right_view
+from cade_cli.matching.side_by_side import side_by_side
 
 Choice = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """``choose(network, match, accepted) -> taken``: which accepted matches replace the
@@ -182,7 +183,8 @@ class RankSgbmRefinement:
         agreement with ``disparity`` is not applied here)."""
         width = left.shape[1]
         top = self.rank_window**2 - 1
-        left_rank, right_rank = (rank_transform(band, window=self.rank_window) for band in (left, right))
+        left_rank, right_rank = side_by_side(lambda: rank_transform(left, window=self.rank_window),
+                                             lambda: rank_transform(right, window=self.rank_window))
         # The left ranks are flipped, where the regions are found. Flipping the right ones
         # instead is not bit-identical in OpenCV's SGBM but no more accurate (contrast inverted
         # everywhere: 5.87 px EPE against 5.86, models/README.md, session 11).
