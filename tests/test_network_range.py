@@ -78,3 +78,19 @@ def test_a_card_asks_for_the_narrowed_search(tmp_path: Path, monkeypatch):
     (margin, narrow), (whole_margin, whole) = searched
     assert margin == NETWORK_RANGE_MARGIN and whole_margin is None
     assert narrow < 32 and whole == 100
+
+
+def test_where_the_network_lies_outside_the_narrowed_search_its_value_is_kept():
+    """Pixels the narrowed search cannot reach (a few beyond the percentiles) keep the network's
+    value, even where SGBM accepted a match inside the search."""
+    pair = render_pair(np.random.default_rng(5), (96, 192), background=(30.0, 0.0), foreground=(40.0, 0.0))
+    estimate = pair.disparity.astype(np.float32).copy()
+    # outside the rest, under the 0.5 % of the samples the percentiles drop, and within the 32 px agreement
+    # of the true 30 px that SGBM finds there
+    estimate[0, 100:120] = 61.0
+    whole = DisparityRange(0, 95)
+    searched = NARROW.searched_range(estimate, whole)
+    assert searched.maximum < 61
+    refined, taken = NARROW.refine(pair.left, pair.right, estimate, whole)
+    assert np.all(refined[0, 100:120] == 61.0) and not taken[0, 100:120].any()
+    assert taken[1:].mean() > 0.5  # elsewhere SGBM's matches are taken as before

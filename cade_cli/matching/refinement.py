@@ -165,7 +165,11 @@ class RankSgbmRefinement:
         minimum = searched.minimum
         refined, taken = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum, searched.span,
                                           choose=choose)
-        return (refined + minimum if minimum else refined), taken
+        refined = refined + minimum if minimum else refined
+        if searched != disparity_range:  # where the network lies outside the search, SGBM had no say
+            outside = (disparity < searched.minimum) | (disparity > searched.maximum)
+            refined, taken = np.where(outside, disparity, refined).astype(np.float32), taken & ~outside
+        return refined, taken
 
     def searched_range(self, disparity: np.ndarray, disparity_range: DisparityRange) -> DisparityRange:
         """The disparities SGBM searches: ``disparity_range``, or with :attr:`network_range` set the
