@@ -82,8 +82,10 @@ class ModelCard:
     refinement: str = "rank-sgbm"
     """What the ``cade`` matcher does after the network (:data:`RUNTIME_REFINEMENTS`, the
     card's ``runtime_refinement``): SGBM of the rank-transformed raw bands (every card
-    before Accuracy III, and cards without the field), or nothing (``none``: the network's
-    map is the answer, at the network's speed)."""
+    before Accuracy III, and cards without the field), the same search narrowed to the
+    network's own range (``rank-sgbm-network-range``: fewer disparities, less time;
+    :attr:`cade_cli.matching.refinement.RankSgbmRefinement.network_range`), or nothing
+    (``none``: the network's map is the answer, at the network's speed)."""
     context: int = DEFAULT_CONTEXT_PX
     """Px of image around a pixel that move the network's estimate there (the card's
     ``context_px``; :data:`DEFAULT_CONTEXT_PX` for cards without it): the collar of a tiled
@@ -95,7 +97,7 @@ class ModelCard:
     (:meth:`cade_cli.matching.network.NetworkStage.estimate`). Empty: one pass."""
 
 
-RUNTIME_REFINEMENTS = ("rank-sgbm", "none")
+RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "none")
 TEST_TIME_AUGMENTATIONS = ("vertical-flip",)
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.cost import CostVolume, census_cost, census_transform, rank_transform, zncc_cost
+from cade_cli.matching.cost import RANK_ROWS, CostVolume, census_cost, census_transform, rank_transform, zncc_cost
 from cade_cli.matching.disparity import (
     fill_invalid_along_rows,
     left_right_check,
@@ -36,6 +36,13 @@ def test_rank_is_the_census_bit_count(rng, window):
     image = rng.random((11, 17)).astype(np.float32)
     np.testing.assert_array_equal(rank_transform(image, window=window),
                                   np.bitwise_count(census_transform(image, window=window)))
+
+
+def test_rank_block_by_block_is_the_census_bit_count_of_the_whole_image(rng):
+    """rank_transform compares RANK_ROWS rows at a time: an image of several blocks and a
+    partial one, with ties (8 grey levels), must get the ranks of the whole-image census."""
+    image = np.floor(rng.random((2 * RANK_ROWS + 37, 23)) * 8).astype(np.float32)
+    np.testing.assert_array_equal(rank_transform(image), np.bitwise_count(census_transform(image)))
 
 
 def test_rank_ignores_gain_offset_and_gamma_and_flips_with_contrast(rng):

@@ -16,7 +16,7 @@ unfilled result (NaN where invalid; filling is the caller's stage,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -26,6 +26,10 @@ from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
+
+NETWORK_RANGE_MARGIN = 4
+"""Px searched beyond the network's own range by a card whose ``runtime_refinement`` is
+``rank-sgbm-network-range`` (:attr:`RankSgbmRefinement.network_range`)."""
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,10 @@ class LearnedPipeline:
             chooser = Chooser.from_dict(weights) if weights is not None else None
             choose = None if chooser is None else (
                 lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
-            refined, taken = self.refinement.refine(left, right, network, disparity_range, choose=choose)
+            refinement = self.refinement
+            if self.network.card().refinement == "rank-sgbm-network-range":
+                refinement = replace(refinement, network_range=NETWORK_RANGE_MARGIN)
+            refined, taken = refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
             agreement = np.where(taken, np.abs(refined - network), np.float32(np.inf))
         confidence = network_confidence(uncertainty, valid, agreement=agreement) if self.confidence else None

@@ -35,6 +35,7 @@ import numpy as np
 from cade_cli.errors import CadeError
 from cade_cli.io.checksum import file_sha256
 from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.side_by_side import side_by_side
 from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
 from cade_cli.spectral import network_input
 
@@ -218,7 +219,8 @@ class NetworkStage:
         session = onnx_session(variant.path, variant.sha256)
         height, width = left.shape
         minimum = disparity_range.minimum
-        left_band, right_band = (network_input(band, card.input) for band in (left, shift_right_view(right, minimum)))
+        left_band, right_band = side_by_side(lambda: network_input(left, card.input),
+                                             lambda: network_input(shift_right_view(right, minimum), card.input))
         if factor > 1:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))
             left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)

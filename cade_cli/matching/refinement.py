@@ -17,9 +17,10 @@ import cv2
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.classical import sgbm_matcher
+from cade_cli.matching.classical import opencv_sgbm_levels, sgbm_matcher
 from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.network import shift_right_view
+from cade_cli.matching.side_by_side import side_by_side
 
 Choice = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 """``choose(network, match, accepted) -> taken``: which accepted matches replace the
@@ -136,6 +137,8 @@ class RankSgbmRefinement:
         block, p1, p2: SGBM block side and smoothness penalties per pixel of the block
             (OpenCV's usual 8 and 32, with a stiffer P2).
         uniqueness: SGBM's uniqueness ratio, %.
+        network_range: None searches the whole range in step 2; a margin (px) searches only
+            the network's own range (:meth:`searched_range`) widened by it on each side.
     """
 
     agreement: float = 32
@@ -144,6 +147,7 @@ class RankSgbmRefinement:
     p1: int = 8
     p2: int = 64
     uniqueness: int = 10
+    network_range: int | None = None
 
     def __call__(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                  disparity_range: DisparityRange) -> np.ndarray:
@@ -157,14 +161,34 @@ class RankSgbmRefinement:
         """:meth:`__call__`'s refined disparity and the (H, W) bool mask of the pixels where
         it is SGBM's match (accepted, and within ``agreement`` px of ``disparity`` or where
         ``choose`` says so); elsewhere it is ``disparity`` itself."""
-        minimum = disparity_range.minimum
-        refined, taken = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum,
-                                          disparity_range.span, choose=choose)
-        return (refined + minimum if minimum else refined), taken
+        searched = self.searched_range(disparity, disparity_range)
+        minimum = searched.minimum
+        refined, taken = self.refine_span(left, shift_right_view(right, minimum), disparity - minimum, searched.span,
+                                          choose=choose)
+        refined = refined + minimum if minimum else refined
+        if searched != disparity_range:  # where the network lies outside the search, SGBM had no say
+            outside = (disparity < searched.minimum) | (disparity > searched.maximum)
+            refined, taken = np.where(outside, disparity, refined).astype(np.float32), taken & ~outside
+        return refined, taken
+
+    def searched_range(self, disparity: np.ndarray, disparity_range: DisparityRange) -> DisparityRange:
+        """The disparities SGBM searches: ``disparity_range``, or with :attr:`network_range` set the
+        network's own range (its 0.5 and 99.5 percentiles over every 4th row and column, widened by
+        that margin, then by OpenCV's rounding of the count up to a multiple of 16, both sides
+        alike) within ``disparity_range``."""
+        if self.network_range is None:
+            return disparity_range
+        low, high = np.percentile(disparity[::4, ::4], (0.5, 99.5))
+        low = max(disparity_range.minimum, int(np.floor(low)) - self.network_range)
+        high = min(disparity_range.maximum, max(int(np.ceil(high)) + self.network_range, low + 1))
+        slack = opencv_sgbm_levels(high - low + 1) - (high - low + 1)  # searched anyway: centred
+        low = max(disparity_range.minimum, low - slack // 2)
+        high = min(disparity_range.maximum, low + opencv_sgbm_levels(high - low + 1) - 1)
+        return DisparityRange(low, high)
 
     def refine_span(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                     span: int, *, choose: Choice | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range),
+        """The refinement over disparities 0 .. ``span`` px (``disparity`` in that range, or near it),
         and where it took SGBM's match (as :meth:`refine`)."""
         if span < 1:  # a single disparity: nothing to choose between
             return np.asarray(disparity, np.float32), np.zeros(np.shape(disparity), bool)
@@ -182,7 +206,8 @@ class RankSgbmRefinement:
         agreement with ``disparity`` is not applied here)."""
         width = left.shape[1]
         top = self.rank_window**2 - 1
-        left_rank, right_rank = (rank_transform(band, window=self.rank_window) for band in (left, right))
+        left_rank, right_rank = side_by_side(lambda: rank_transform(left, window=self.rank_window),
+                                             lambda: rank_transform(right, window=self.rank_window))
         # The left ranks are flipped, where the regions are found. Flipping the right ones
         # instead is not bit-identical in OpenCV's SGBM but no more accurate (contrast inverted
         # everywhere: 5.87 px EPE against 5.86, models/README.md, session 11).
