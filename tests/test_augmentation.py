@@ -18,6 +18,7 @@ from synthetic import render_pair
 def augmented_card(tmp_path, entries: list[str]):
     """The shipped network's card with ``test_time_augmentation`` ``entries``, in a folder of its own."""
     card = json.loads(model_card.card_path(DEFAULT_MODEL).read_text())
+    tmp_path.mkdir(exist_ok=True)
     for variant in card["variants"]:
         (tmp_path / variant["file"]).symlink_to(model_card.card_path(DEFAULT_MODEL).parent / variant["file"])
     path = tmp_path / "augmented.json"
@@ -101,3 +102,12 @@ def test_a_card_with_a_second_scale_and_the_mirrored_pair_recovers_a_rendered_di
         np.testing.assert_array_equal(passes[2][0], passes[0][1][:, ::-1])
         np.testing.assert_array_equal(passes[2][1], passes[0][0][:, ::-1])
     assert np.abs(densify(result.disparity, result.valid) - pair.disparity)[pair.reliable].mean() < 1.0
+
+
+def test_the_memory_plan_counts_the_pair_enlarged_for_a_second_scale(tmp_path):
+    from cade_cli.scale.memory import ENLARGED_PIXEL_BYTES, tile_memory_bytes
+
+    plain = tile_memory_bytes("cade", 400, 300, 64)
+    mirrored = tile_memory_bytes("cade", 400, 300, 64, model=str(augmented_card(tmp_path / "a", ["mirrored"])))
+    enlarged = tile_memory_bytes("cade", 400, 300, 64, model=str(augmented_card(tmp_path / "b", ["upscaled-x2"])))
+    assert mirrored == plain and enlarged == plain + ENLARGED_PIXEL_BYTES * 4 * 400 * 300
