@@ -47,6 +47,21 @@ def test_an_upscaled_pass_runs_on_enlarged_bands_and_returns_disparity_in_the_le
     np.testing.assert_allclose(output.uncertainty, 1.5, atol=1e-5)
 
 
+def test_on_a_pyramid_level_the_second_scale_shrinks_the_raw_bands_by_area():
+    """Level bands of 32 x 20 (a quarter of the raw 64 x 40 pair's area) enlarged 1.5 times: 48 x 30, still below
+    the raw size, so one-pixel stripes average to grey instead of aliasing."""
+    seen = []
+
+    def run(left, right):
+        seen.append((left.shape, float(left.min()), float(left.max())))
+        return NetworkOutput(np.zeros_like(left), np.zeros_like(left))
+
+    stripes = np.tile(np.array([0.0, 1.0], np.float32), (40, 32))
+    augmentation.upscaled_pass(run, lambda raw: raw, stripes, stripes, (32, 20), 1.5)
+    (shape, low, high), = seen
+    assert shape == (30, 48) and 0.2 < low <= high < 0.8  # bicubic: 0.07 to 0.93
+
+
 def test_the_right_views_estimate_is_sampled_where_each_left_pixel_lands():
     ramp = np.tile(np.arange(32, dtype=np.float32), (4, 1))  # the right view's value: its own column
     warped, inside = augmentation.warp_to_left(NetworkOutput(ramp, ramp), np.full((4, 32), 5.0, np.float32))

@@ -80,12 +80,15 @@ def second_scale(wanted: float, span: float, searchable: int) -> float | None:
 
 def upscaled_pass(run: NetworkPass, to_input: Callable[[np.ndarray], np.ndarray], left: np.ndarray,
                   right: np.ndarray, size: tuple[int, int], factor: float) -> NetworkOutput:
-    """The pass over the raw bands ``left``, ``right`` enlarged to ``factor`` x ``size`` ((width, height)
-    of the level's bands), its network input made by ``to_input``; the output shrunk back to ``size``
+    """The pass over the raw bands ``left``, ``right`` resized to ``factor`` x ``size`` ((width, height)
+    of the level's bands: bicubic when that enlarges them, by area when a pyramid level leaves it below
+    their size), its network input made by ``to_input``; the output shrunk back to ``size``
     (area mean) and divided by the true enlargement of the width."""
     width, height = size
     large = (max(1, round(width * factor)), max(1, round(height * factor)))
-    bands = [to_input(cv2.resize(np.asarray(band, np.float32), large, interpolation=UPSCALE_INTERPOLATION))
+    # On a pyramid level the "enlarged" pair may still be smaller than the raw one: shrink it by area then.
+    interpolation = UPSCALE_INTERPOLATION if large[0] > left.shape[1] else cv2.INTER_AREA
+    bands = [to_input(cv2.resize(np.asarray(band, np.float32), large, interpolation=interpolation))
              for band in (left, right)]
     output = run(*bands)
     scale = np.float32(large[0] / width)
