@@ -3,6 +3,7 @@ mirrored pair's left-right check, each against disparities it must recover."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -87,7 +88,8 @@ def test_the_mirrored_pass_recovers_the_right_views_disparity(rng):
     card = read_card(DEFAULT_MODEL)
     session = network.onnx_session(card.variants[0].path, card.variants[0].sha256)
     bands = [network.network_input(band, card.input) for band in (pair.left, 0.1 + 0.6 * pair.right ** 1.8)]
-    right_view = augmentation.mirrored_pass(lambda a, b: network.run_network_outputs(session, card.divisor, a, b), *bands)
+    run = functools.partial(network.run_network_outputs, session, card.divisor)
+    right_view = augmentation.mirrored_pass(run, *bands)
     columns = np.arange(192)
     foreground = pair.disparity[48, :] > 12  # the left view's foreground columns on a middle row
     expected = np.where(foreground[np.clip(columns + 18, 0, 191)], 18.0, 6.0)
