@@ -94,11 +94,13 @@ class ModelCard:
     """Extra network passes fused with the plain one (:data:`TEST_TIME_AUGMENTATIONS`, the card's
     ``test_time_augmentation``): ``vertical-flip`` matches the pair turned upside down, which keeps
     its rows and disparities but gives the network other context above and below each pixel
-    (:meth:`cade_cli.matching.network.NetworkStage.estimate`). Empty: one pass."""
+    (:meth:`cade_cli.matching.network.NetworkStage.estimate`); ``upscaled-x1.5`` and ``upscaled-x2`` match
+    the pair enlarged (a second scale); ``mirrored`` checks the estimate against the right view's
+    (:mod:`cade_cli.matching.augmentation`). Applied in the card's order. Empty: one pass."""
 
 
 RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "none")
-TEST_TIME_AUGMENTATIONS = ("vertical-flip",)
+TEST_TIME_AUGMENTATIONS = ("vertical-flip", "upscaled-x1.5", "upscaled-x2", "mirrored")
 
 
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:

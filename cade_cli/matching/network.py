@@ -19,6 +19,9 @@ for validity: rejecting pixels above 3 px and filling them from the background r
 many good estimates on thin and slanted structures (models/README.md, "Validity"). It
 feeds the matcher's confidence instead (:func:`~cade_cli.matching.confidence.network_confidence`);
 :meth:`NetworkStage.estimate` returns it beside the disparity, resampled like it.
+
+A card may ask for extra passes fused with the plain one (its ``test_time_augmentation``: the pair
+upside down, enlarged, or mirrored for a left-right check; :mod:`cade_cli.matching.augmentation`).
 """
 
 from __future__ import annotations
@@ -27,13 +30,14 @@ import functools
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.io.checksum import file_sha256
+from cade_cli.matching import augmentation
+from cade_cli.matching.augmentation import FUSE_AGREEMENT_PX, NetworkOutput, fuse_estimates  # noqa: F401 (re-exported)
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.side_by_side import side_by_side
 from cade_cli.model_card import DEFAULT_MODEL, MODEL_DIR_ENV, ModelCard, ModelVariant, read_card
@@ -47,6 +51,10 @@ STRIP_OVERLAP = 32
 RANGE_MARGIN = 8
 """A variant's top levels are kept free: spans (max - min) up to ``levels - RANGE_MARGIN`` px
 run at full size."""
+OUTPUT_NAMES = ("disparity", "uncertainty")
+"""The ONNX outputs read, in the order of :class:`NetworkOutput`'s fields."""
+UPSCALED = {"upscaled-x1.5": 1.5, "upscaled-x2": 2.0}
+"""The second-scale entries of a card's ``test_time_augmentation``: how much each enlarges the raw bands."""
 ALLOW_SPINNING = "session.intra_op.allow_spinning"
 """onnxruntime's session option that lets its threads busy-wait for work after a run; off here."""
 
@@ -142,14 +150,6 @@ def strips(height: int, width: int, *, max_pixels: int = STRIP_PIXELS, overlap: 
     return [(s, e, ks, bands[i + 1][2] if i + 1 < len(bands) else ke) for i, (s, e, ks, ke) in enumerate(bands)]
 
 
-class NetworkOutput(NamedTuple):
-    """The network's two (H, W) float32 outputs for the left view, px: ``disparity`` and
-    ``uncertainty`` (standard deviation of its soft-argmin distribution, >= 0)."""
-
-    disparity: np.ndarray
-    uncertainty: np.ndarray
-
-
 def run_network_outputs(session, divisor: int, left: np.ndarray, right: np.ndarray) -> NetworkOutput:
     """The network's disparity (px, 0 .. levels - 1) and uncertainty (px) for
     color-agnostic bands of any size: strips, padding, cropping. Asking for both outputs
@@ -160,7 +160,7 @@ def run_network_outputs(session, divisor: int, left: np.ndarray, right: np.ndarr
     for start, stop, keep_start, keep_stop in strips(height, padded_width, max_pixels=STRIP_PIXELS, divisor=divisor):
         inputs = {name: pad_to_divisor(band[start:stop], divisor)[0][None, None]
                   for name, band in (("left", left), ("right", right))}
-        for kept, out in zip(outputs, session.run(list(NetworkOutput._fields), inputs)):
+        for kept, out in zip(outputs, session.run(list(OUTPUT_NAMES), inputs)):
             kept[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start, :width]
     return outputs
 
@@ -169,25 +169,6 @@ def run_network(session, divisor: int, left: np.ndarray, right: np.ndarray) -> n
     """The network's (H, W) float32 disparity (px, 0 .. levels - 1) for color-agnostic
     bands of any size (:func:`run_network_outputs` without the uncertainty)."""
     return run_network_outputs(session, divisor, left, right).disparity
-
-
-FUSE_AGREEMENT_PX = 1.0
-"""Two passes' disparities within this many px (plus their uncertainties) are one surface and
-are averaged; farther apart they are two guesses, and the more certain one is kept."""
-
-
-def fuse_estimates(first: NetworkOutput, second: NetworkOutput) -> NetworkOutput:
-    """One estimate of two network passes over the same pair: where they agree (within
-    :data:`FUSE_AGREEMENT_PX` plus the larger uncertainty) the inverse-variance weighted mean of the
-    disparities, and of the uncertainties with the same weights (so the uncertainty keeps the scale
-    the card's chooser was fitted on); elsewhere the pass with the lower uncertainty."""
-    d1, u1, d2, u2 = first.disparity, first.uncertainty, second.disparity, second.uncertainty
-    w1, w2 = (1.0 / (np.square(u) + np.float32(0.25)) for u in (u1, u2))
-    agree = np.abs(d1 - d2) <= FUSE_AGREEMENT_PX + np.maximum(u1, u2)
-    first_surer = u1 <= u2
-    disparity = np.where(agree, (w1 * d1 + w2 * d2) / (w1 + w2), np.where(first_surer, d1, d2))
-    uncertainty = np.where(agree, (w1 * u1 + w2 * u2) / (w1 + w2), np.where(first_surer, u1, u2))
-    return NetworkOutput(disparity.astype(np.float32), uncertainty.astype(np.float32))
 
 
 @dataclass(frozen=True)
@@ -219,19 +200,39 @@ class NetworkStage:
         session = onnx_session(variant.path, variant.sha256)
         height, width = left.shape
         minimum = disparity_range.minimum
-        left_band, right_band = side_by_side(lambda: network_input(left, card.input),
-                                             lambda: network_input(shift_right_view(right, minimum), card.input))
+        raw = (left, shift_right_view(right, minimum))
+        left_band, right_band = side_by_side(lambda: network_input(raw[0], card.input),
+                                             lambda: network_input(raw[1], card.input))
         if factor > 1:
             size = (max(1, round(width / factor)), max(1, round(height / factor)))
             left_band, right_band = (cv2.resize(band, size, interpolation=cv2.INTER_AREA)
                                      for band in (left_band, right_band))
-        network, uncertainty = run_network_outputs(session, card.divisor, left_band, right_band)
-        if "vertical-flip" in card.test_time:  # the pair upside down: the same rows, the same disparities
-            flipped = run_network_outputs(session, card.divisor, left_band[::-1].copy(), right_band[::-1].copy())
-            network, uncertainty = fuse_estimates(NetworkOutput(network, uncertainty),
-                                                  NetworkOutput(flipped.disparity[::-1], flipped.uncertainty[::-1]))
+        run = functools.partial(run_network_outputs, session, card.divisor)
+        output = run(left_band, right_band)
+        for name in card.test_time:
+            output = self._augment(name, output, run, card, (left_band, right_band), raw,
+                                   second_span=disparity_range.span * left_band.shape[1] / width,
+                                   searchable=searchable_span(variant))
+        network, uncertainty = output
         if factor > 1:
             scale = np.float32(width / left_band.shape[1])
-            network, uncertainty = (cv2.resize(output, (width, height), interpolation=cv2.INTER_LINEAR) * scale
-                                    for output in (network, uncertainty))
+            network, uncertainty = (cv2.resize(band, (width, height), interpolation=cv2.INTER_LINEAR) * scale
+                                    for band in (network, uncertainty))
         return NetworkOutput(np.clip(network + minimum, minimum, disparity_range.maximum), uncertainty)
+
+    @staticmethod
+    def _augment(name: str, output: NetworkOutput, run, card: ModelCard, bands: tuple[np.ndarray, np.ndarray],
+                 raw: tuple[np.ndarray, np.ndarray], *, second_span: float, searchable: int) -> NetworkOutput:
+        """``output`` (the network's on the level's ``bands``) fused with the extra pass ``name`` of the
+        card's ``test_time_augmentation`` (:mod:`cade_cli.matching.augmentation`); ``raw``: the full-size
+        raw bands (the right one pre-shifted), ``second_span``: the range's span on the level, px."""
+        if name == "vertical-flip":
+            return fuse_estimates(output, augmentation.flipped_pass(run, *bands))
+        if name == "mirrored":
+            return augmentation.left_right_fuse(output, augmentation.mirrored_pass(run, *bands))
+        factor = augmentation.second_scale(UPSCALED[name], second_span, searchable)
+        if factor is None:
+            return output
+        size = (bands[0].shape[1], bands[0].shape[0])
+        second = augmentation.upscaled_pass(run, functools.partial(network_input, kind=card.input), *raw, size, factor)
+        return fuse_estimates(output, second)

@@ -11,7 +11,7 @@ import re
 from cade_cli.errors import CadeError
 from cade_cli.matching import get_matcher
 from cade_cli.matching.learned import LearnedPipeline
-from cade_cli.matching.network import STRIP_PIXELS
+from cade_cli.matching.network import STRIP_PIXELS, UPSCALED
 
 
 PIXEL_BYTES = 200
@@ -30,6 +30,11 @@ NETWORK_LEVEL_BYTES = 6
 """For the learned methods, bytes the network holds per pixel of a strip and level of its
 variant (about 1 GB at 128 levels and 2.3 GB at 256 on a full strip of
 :data:`~cade_cli.matching.network.STRIP_PIXELS`, :mod:`cade_cli.matching.network`)."""
+
+ENLARGED_PIXEL_BYTES = 32
+"""For a card with a second-scale pass (``upscaled-x1.5``, ``upscaled-x2``:
+:mod:`cade_cli.matching.augmentation`), bytes per pixel of the enlarged pair: its two raw bands, their
+network input and the pass's two outputs (float32), and the resize's temporaries."""
 
 MEMORY_SHARE = 0.5
 """Default budget: this share of the memory available (``MemAvailable``)."""
@@ -98,12 +103,23 @@ def widest_network_levels(method: str, model: str | None = None) -> int:
     return 0 if kernel is None else max(variant.levels for variant in kernel.network.card().variants)
 
 
+def enlarged_area(method: str, model: str | None = None) -> float:
+    """Area of ``method``'s largest second-scale pass against the pair's (2.25 for ``upscaled-x1.5``), 0
+    without one (a classical matcher, a card without such a ``test_time_augmentation`` entry)."""
+    kernel = learned_kernel(method, model)
+    if kernel is None:
+        return 0.0
+    return max((UPSCALED[name] for name in kernel.network.card().test_time if name in UPSCALED), default=0.0) ** 2
+
+
 def tile_memory_bytes(method: str, width: int, height: int, disparities: int, *, model: str | None = None) -> int:
     """What a ``width`` x ``height`` window (or the whole pair) is planned to take when tiling:
     :func:`matching_memory_bytes`, plus for a learned method its network's largest strip
     (:data:`NETWORK_LEVEL_BYTES` per pixel, up to
     :data:`~cade_cli.matching.network.STRIP_PIXELS`, and level of the widest variant): on
-    a large window the strip, not the pixels, dominates."""
+    a large window the strip, not the pixels, dominates), plus the pair enlarged for a second-scale
+    pass (:data:`ENLARGED_PIXEL_BYTES` per enlarged pixel; the pass's strips are the same size)."""
     strip = min(width * height, STRIP_PIXELS)
-    return (matching_memory_bytes(method, width, height, disparities)
-            + NETWORK_LEVEL_BYTES * strip * widest_network_levels(method, model))
+    return int(matching_memory_bytes(method, width, height, disparities)
+               + NETWORK_LEVEL_BYTES * strip * widest_network_levels(method, model)
+               + ENLARGED_PIXEL_BYTES * width * height * enlarged_area(method, model))
