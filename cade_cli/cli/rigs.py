@@ -212,10 +212,7 @@ def register_array(
     from cade_cli.scale.range import AUTO
 
     check_output(output, suffixes=(".tif", ".tiff"), inputs=(rig_file, *images))
-    search = (_array_bound(min_disp, "min-disp"), _array_bound(max_disp, "max-disp"))
-    if not plane_only and None not in search and not search[0] < search[1]:  # before any image is read
-        raise CadeError(f"--max-disp {max_disp} is not above --min-disp {min_disp}: nothing to search; "
-                        f"give a --max-disp above --min-disp (px per unit baseline)")
+    search = _array_search(min_disp, max_disp, plane_only)
     if disparity_file is not None:
         if plane_only:
             raise CadeError("--disparity needs the parallax estimated; drop it or --plane-only")
@@ -288,6 +285,18 @@ def _write_array_outputs(output: Path, cube, registration, *, disparity_file: Pa
             import cv2
 
             cv2.imwrite(str(staged[vis]), false_colour(cube, channels))
+
+
+def _array_search(min_disp: str, max_disp: str, plane_only: bool) -> tuple[float | None, float | None]:
+    """register-array's range, px per unit baseline (None: ``auto``), refused when empty before
+    any image is read."""
+    from cade_cli.errors import CadeError
+
+    search = (_array_bound(min_disp, "min-disp"), _array_bound(max_disp, "max-disp"))
+    if not plane_only and None not in search and not search[0] < search[1]:
+        raise CadeError(f"--max-disp {max_disp} is not above --min-disp {min_disp}: nothing to search; "
+                        f"give a --max-disp above --min-disp (px per unit baseline)")
+    return search
 
 
 def _array_bound(text: str, option: str) -> float | None:
