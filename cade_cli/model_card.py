@@ -30,11 +30,11 @@ CARD_FORMAT = 2
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v11"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": DEFAULT_MODEL}
-"""``--model fast`` and ``--model accurate``: the shipped card each tier names. Both name cade-v11
-since session 20 (cade-v10 in session 19): it ties or beats cade-v6, the accurate tier before, on
-every benchmark set but two BMP3 figures within 1 % (models/cade-v11.md); a wider model of its
-design is to become the accurate tier."""
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v11-accurate"}
+"""``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v11 since
+session 20 (cade-v10 in session 19). accurate: since session 26 cade-v11-accurate, the same network
+with a second pass on the pair enlarged 1.5x fused in (``test_time_augmentation: ["upscaled-x1.5"]``),
+which passed Accuracy IV's shipping rule against cade-v11 on every set (models/cade-v11-accurate.md)."""
 
 
 def model_dir() -> Path:

@@ -48,8 +48,9 @@ MinDispAutoOption = Annotated[
 
 ModelOption = Annotated[
     Optional[str],
-    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default) or accurate (both "
-                 "cade-v11 for now; models/cade-v11.md), a shipped card's name (cade-v4, cade-v6: the models "
+    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default: cade-v11, "
+                 "models/cade-v11.md) or accurate (cade-v11-accurate: the same network with a second pass on the "
+                 "pair enlarged 1.5x, about 3x the time), a shipped card's name (cade-v4, cade-v6: the models "
                  "before), the path of a "
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
