@@ -142,8 +142,9 @@ def open_log(path: Path, start: int):
 
 def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
              device_type: str) -> tuple[float, float] | None:
-    """One optimiser step on ``batch``: (loss, training EPE px), or None when the step was
-    skipped (no ground truth in the batch, or a loss or gradient that is not finite)."""
+    """One optimiser step on ``batch``: (loss, training EPE px; 0 for a batch of self-supervised
+    pairs only), or None when the step was skipped (neither ground truth nor self-supervised
+    pairs in the batch, or a loss or gradient that is not finite)."""
     batch = {key: value.to(config.device, non_blocking=True) for key, value in batch.items()}
     with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
         out = net(batch["left"], batch["right"])
