@@ -15,6 +15,14 @@ def main() -> None:
     """Train CadeNet on generated CADE pairs and export it to ONNX."""
 
 
+def default_selfsup_cache(out: Path) -> Path:
+    """``$CADE_CACHE_DIR/selfsup-pairs`` when that is set, else ``OUT/selfsup-pairs``."""
+    import os
+
+    root = os.environ.get("CADE_CACHE_DIR")
+    return Path(root) / "selfsup-pairs" if root else out / "selfsup-pairs"
+
+
 @app.command()
 def fit(
     out: Annotated[Path, typer.Option(help="Run folder: config.json, log.csv, last.pt.")],
@@ -99,12 +107,26 @@ def fit(
     = None,
     validate_rgb: Annotated[bool, typer.Option(help="Also validate on Middlebury's same-band tasks (R>R, G>G, "
                                                "B>B), for the RGB curves.")] = False,
+    selfsup_dir: Annotated[Path | None, typer.Option(help="Folder of multi-lens captures without ground truth "
+                                                    "(../shared/data/micasense): rectified band pairs train by a "
+                                                    "self-supervised loss.")] = None,
+    selfsup_cache: Annotated[Path | None, typer.Option(help="Where the rectified pairs are cached (default: "
+                                                      "$CADE_CACHE_DIR/selfsup-pairs, else OUT/selfsup-pairs).")]
+    = None,
+    selfsup_share: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of training pairs cut from the "
+                                                 "rectified real pairs (needs --selfsup-dir).")] = 0.0,
+    selfsup_weight: Annotated[float, typer.Option(min=0.0, help="Weight of the self-supervised loss.")] = 1.0,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
 ) -> None:
     """Train (or resume) a run."""
     if real_share > 0 and real_dir is None:
         raise typer.BadParameter("--real-share needs --real-dir", param_hint="--real-share")
+    if selfsup_share > 0 and selfsup_dir is None:
+        raise typer.BadParameter("--selfsup-share needs --selfsup-dir", param_hint="--selfsup-share")
+    if selfsup_dir is not None and "msir-outdoor" in selfsup_dir.resolve().parts:
+        raise typer.BadParameter("msir-outdoor is the shipping rule's real check: never trained on",
+                                 param_hint="--selfsup-dir")
     if real_hold_out and real_dir is None:
         raise typer.BadParameter("--real-hold-out needs --real-dir", param_hint="--real-hold-out")
     from cade_cli.train.config import TrainConfig
@@ -138,7 +160,10 @@ def fit(
                          half_channels=half_channels,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
-                         feature_consistency=feature_consistency, crop_schedule=crop_schedule)
+                         feature_consistency=feature_consistency, crop_schedule=crop_schedule,
+                         selfsup_dir=str(selfsup_dir) if selfsup_dir else None,
+                         selfsup_cache=str(selfsup_cache or default_selfsup_cache(out)) if selfsup_dir else None,
+                         selfsup_share=selfsup_share, selfsup_weight=selfsup_weight)
     train(config, resume=resume)
 
 

@@ -10,9 +10,11 @@ import numpy as np
 import torch
 
 from cade_cli.train.config import TrainConfig
+from cade_cli.train.pairs import CadePair, network_input_of
 from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
 from cade_cli.train.scenes import Misalignment, erased, render_scene
+from cade_cli.train.selfsup_pairs import SelfSupPairs
 from cade_cli.train.textures import TexturePool
 
 
@@ -23,6 +25,7 @@ class GeneratedBatches(torch.utils.data.Dataset):
         self.config = config
         self.pool: TexturePool | None = None
         self.real: RealScenes | None = None
+        self.selfsup: SelfSupPairs | None = None
 
     def __len__(self) -> int:
         return self.config.steps
@@ -33,9 +36,11 @@ class GeneratedBatches(torch.utils.data.Dataset):
             self.pool = TexturePool([Path(folder) for folder in config.textures])
             self.real = (RealScenes(Path(config.real_dir), hold_out=config.real_hold_out)
                          if config.real_share > 0 else None)
+            self.selfsup = SelfSupPairs(Path(config.selfsup_cache)) if config.selfsup_share > 0 else None
         rng = np.random.default_rng([config.seed, step])
         height, width = crop_at(config, step)
-        return collate([training_pair(rng, self.pool, self.real, config, height, width) for _ in range(config.batch)])
+        return collate([training_pair(rng, self.pool, self.real, config, height, width, selfsup=self.selfsup)
+                        for _ in range(config.batch)])
 
 
 def crop_at(config: TrainConfig, step: int) -> tuple[int, int]:
@@ -69,12 +74,15 @@ def parse_crop_schedule(text: str | None) -> list[tuple[int, int, int]]:
 
 
 def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes | None, config: TrainConfig,
-                  height: int | None = None, width: int | None = None):
-    """One CADE training pair of ``height`` x ``width`` (default: the config's): cut from a
-    real scene with probability ``config.real_share`` (no random draw for that when the
-    share is 0, so earlier runs reproduce), else rendered."""
+                  height: int | None = None, width: int | None = None, *, selfsup: SelfSupPairs | None = None):
+    """One CADE training pair of ``height`` x ``width`` (default: the config's): with
+    probability ``config.selfsup_share`` a crop of a rectified real pair without ground truth
+    (``selfsup``), else cut from a real scene with probability ``config.real_share``, else
+    rendered (no random draw for a share of 0, so earlier runs reproduce)."""
     height, width = height or config.height, width or config.width
     second_left = config.feature_consistency > 0
+    if selfsup is not None and rng.random() < config.selfsup_share:
+        return selfsup_pair(selfsup, rng, config, height, width, second_left=second_left)
     if real is not None and rng.random() < config.real_share:
         scene = erased(real.draw(rng, height, width, limit=config.levels - 1), rng, config.eraser)
         return mode_pair(scene, rng, config.training_mode, config.network_input, second_left=second_left)
@@ -104,6 +112,17 @@ def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, wid
     return mode_pair(erased(scene, rng, eraser), rng, mode, kind, second_left=second_left)
 
 
+def selfsup_pair(selfsup: SelfSupPairs, rng: np.random.Generator, config: TrainConfig, height: int, width: int, *,
+                 second_left: bool = False) -> CadePair:
+    """A crop of a rectified real pair (:meth:`SelfSupPairs.draw`) as a training pair: no
+    ground truth (disparity NaN), its guides for the self-supervised loss; the left view
+    stands in for its second band (``second_left``: the feature-consistency loss sees nothing)."""
+    crop = selfsup.draw(rng, height, width, network_input_of(config.training_mode, config.network_input))
+    return CadePair(left=crop.left, right=crop.right, disparity=np.full((height, width), np.nan, np.float32),
+                    nonoccluded=np.zeros((height, width), bool), bands=crop.bands,
+                    left_alt=crop.left if second_left else None, guides=crop.guides)
+
+
 def collate(pairs) -> dict[str, torch.Tensor]:
     return {
         "left": torch.from_numpy(np.stack([p.left for p in pairs])[:, None]),
@@ -112,4 +131,13 @@ def collate(pairs) -> dict[str, torch.Tensor]:
         "nonoccluded": torch.from_numpy(np.stack([p.nonoccluded for p in pairs])[:, None]),
         **({"left_alt": torch.from_numpy(np.stack([p.left_alt for p in pairs])[:, None])}
            if pairs[0].left_alt is not None else {}),
+        **(guides_of(pairs) if any(p.guides is not None for p in pairs) else {}),
     }
+
+
+def guides_of(pairs) -> dict[str, torch.Tensor]:
+    """``guides`` (B, 4, H, W; zeros for the pairs without) and ``selfsup`` (B,) bool."""
+    height, width = pairs[0].left.shape
+    empty = np.zeros((4, height, width), np.float32)
+    return {"guides": torch.from_numpy(np.stack([empty if p.guides is None else p.guides for p in pairs])),
+            "selfsup": torch.tensor([p.guides is not None for p in pairs])}

@@ -107,6 +107,16 @@ class TrainConfig:
     (cheap steps, local matching), larger ones later (context); None: ``height`` x ``width``."""
     validate_rgb: bool = False
     """Also validate on Middlebury's same-band tasks (the ``*-rgb`` sets of :func:`validation_sets`)."""
+    selfsup_dir: str | None = None
+    """Folder of multi-lens captures without ground truth (``../shared/data/micasense``; never
+    ``msir-outdoor``), rectified band pairs of which train by the self-supervised loss
+    (:mod:`~cade_cli.train.selfsup_pairs`, :mod:`~cade_cli.train.selfsup_loss`; issue 38 item 5)."""
+    selfsup_cache: str | None = None
+    """Where the rectified pairs of ``selfsup_dir`` are cached (npz; built once)."""
+    selfsup_share: float = 0.0
+    """Share of training pairs cut from the rectified real pairs (0: none, no draw)."""
+    selfsup_weight: float = 1.0
+    """Weight of the self-supervised loss beside the supervised one."""
     time_budget_s: float | None = None
     """Leave the loop, checkpointed, once this many seconds have passed in this process
     (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""

@@ -23,6 +23,8 @@ from cade_cli.train.config import TrainConfig
 from cade_cli.train.model import parameter_count
 from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES
+from cade_cli.train.selfsup_loss import selfsup_loss
+from cade_cli.train.selfsup_pairs import build_cache
 from cade_cli.train.validation import evaluate, validation_sets
 
 
@@ -57,6 +59,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     parse_crop_schedule(config.crop_schedule)  # a malformed schedule fails before anything is written
     if config.feature_consistency > 0 and config.architecture != "cadenet2d":
         raise ValueError("the feature-consistency loss needs the cadenet2d architecture")
+    if config.selfsup_share > 0 and not (config.selfsup_dir and config.selfsup_cache):
+        raise ValueError("the self-supervised share needs selfsup_dir and selfsup_cache")
     torch.set_num_threads(config.threads)
     device_type = torch.device(config.device).type
     if device_type == "cuda":
@@ -72,6 +76,9 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     log, with_cpu = open_log(out / "log.csv", start)
     writer = csv.writer(log)
     validation = validation_sets(config)
+    if config.selfsup_share > 0 and not any(Path(config.selfsup_cache).glob("*--*.npz")):
+        # once (a cache holding pairs is used as it is), before the clocks start: data preparation
+        build_cache(Path(config.selfsup_dir), Path(config.selfsup_cache), log=lambda line: print(line, flush=True))
     print(f"CadeNet: {parameter_count(net)} parameters; steps {start}..{config.steps}", flush=True)
 
     batches = torch.utils.data.DataLoader(
@@ -135,8 +142,9 @@ def open_log(path: Path, start: int):
 
 def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
              device_type: str) -> tuple[float, float] | None:
-    """One optimiser step on ``batch``: (loss, training EPE px), or None when the step was
-    skipped (no ground truth in the batch, or a loss or gradient that is not finite)."""
+    """One optimiser step on ``batch``: (loss, training EPE px; 0 for a batch of self-supervised
+    pairs only), or None when the step was skipped (neither ground truth nor self-supervised
+    pairs in the batch, or a loss or gradient that is not finite)."""
     batch = {key: value.to(config.device, non_blocking=True) for key, value in batch.items()}
     with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
         out = net(batch["left"], batch["right"])
@@ -144,11 +152,16 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
         loss, mask = loss_terms(out, batch["disparity"], config.levels, config.coarse_weight)
         if config.feature_consistency > 0:
             loss = loss + config.feature_consistency * feature_consistency(net, out["features"], batch["left_alt"])
+        chosen = batch["selfsup"] if "selfsup" in batch else None
+        if chosen is not None:
+            unsupervised = config.selfsup_weight * selfsup_loss(out["disparity"], batch["guides"], chosen)
+            loss = unsupervised if not bool(mask.any()) else loss + unsupervised
     optimizer.zero_grad(set_to_none=True)
-    if not (bool(mask.any()) and bool(torch.isfinite(loss))):
+    if not ((bool(mask.any()) or chosen is not None) and bool(torch.isfinite(loss))):
         return None
     loss.backward()
     if not bool(torch.isfinite(torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0))):
         return None
     optimizer.step()
-    return loss.item(), (out["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item()
+    epe = (out["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item() if bool(mask.any()) else 0.0
+    return loss.item(), epe

@@ -58,6 +58,10 @@ class CadePair:
     left_alt: np.ndarray | None = None
     """The left view in a second band (drawn with ``second_left``): the same points in
     another spectral mix, for the feature-consistency loss."""
+    guides: np.ndarray | None = None
+    """A real pair without ground truth (the self-supervised source, :mod:`~cade_cli.train.selfsup_pairs`):
+    (4, H, W) left and right bands rescaled to about [0, 1] and where each was seen; its
+    ``disparity`` is NaN throughout."""
 
 
 def both_views_bands(scene: StereoScene, rng: np.random.Generator) -> tuple[dict, dict]:
