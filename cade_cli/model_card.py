@@ -127,10 +127,18 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
 
 
 @functools.lru_cache(maxsize=16)
-def network_sha256(model: str | Path | None = None) -> list[str]:
-    """The sha256 of every network file the card of ``model`` (default: the shipped one) names,
-    sorted: what a batch record stores so that a changed network re-runs its pairs."""
-    return sorted(variant.sha256 for variant in read_card(model or DEFAULT_MODEL).variants)
+def network_fingerprint(model: str | Path | None = None) -> dict:
+    """What of the card of ``model`` (default: the shipped one) decides a learned method's output,
+    as a batch record stores it, so that a changed card re-runs its pairs: the sha256 of every
+    network file it names, sorted; its test-time passes and its refinement where they are not the
+    defaults (left out otherwise, so records written before they existed still match)."""
+    card = read_card(model or DEFAULT_MODEL)
+    fingerprint: dict = {"model_sha256": sorted(variant.sha256 for variant in card.variants)}
+    if card.test_time:
+        fingerprint["test_time_augmentation"] = list(card.test_time)
+    if card.refinement != ModelCard.refinement:
+        fingerprint["runtime_refinement"] = card.refinement
+    return fingerprint
 
 
 def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:

@@ -144,6 +144,17 @@ def test_manifest_with_per_pair_range(cameras, capsys):
     assert read_disparity(cameras / "m" / "third.npy").shape == (48, 96)
 
 
+def test_a_record_tells_the_tiers_apart_though_they_share_a_network():
+    """cade-v11-accurate names cade-v11's ONNX file: the record's fingerprint must still differ (its
+    second pass changes every output), and the fast tier's must stay as records before it wrote it."""
+    fast = PairOptions(method="cade", model="fast").fingerprint()
+    accurate = PairOptions(method="cade", model="cade-v11-accurate").fingerprint()
+    assert fast["model_sha256"] == accurate["model_sha256"]
+    assert "test_time_augmentation" not in fast and "runtime_refinement" not in fast
+    assert accurate["test_time_augmentation"] == ["upscaled-x1.5"]
+    assert "model_sha256" not in PairOptions(method="sgbm").fingerprint()
+
+
 def test_pairs_by_number_when_names_differ(tmp_path):
     for side, name in (("a", "left_{}.png"), ("b", "right_{}.png")):
         (tmp_path / side).mkdir()

@@ -362,8 +362,8 @@ def test_a_batch_without_ground_truth_is_skipped_not_learned(tmp_path: Path, mon
 
     real_pair = batches.training_pair
 
-    def no_ground_truth(rng, pool, real, config, *size):
-        pair = real_pair(rng, pool, real, config, *size)
+    def no_ground_truth(rng, pool, real, config, *size, **sources):
+        pair = real_pair(rng, pool, real, config, *size, **sources)
         return dataclasses.replace(pair, disparity=np.full_like(pair.disparity, np.nan))
 
     monkeypatch.setattr(batches, "training_pair", no_ground_truth)

@@ -61,14 +61,14 @@ class CaptureOptions:
         """What decides a capture's outputs, as stored in its record (a learned method's
         network files by sha256, as for pairs)."""
         from cade_cli.matching import LEARNED_METHODS
-        from cade_cli.model_card import network_sha256
+        from cade_cli.model_card import network_fingerprint
 
         options = asdict(self)
         if self.plane_only:  # no dense matching: its options do not change the cube
             for name in ("method", "model", "match_scale"):
                 del options[name]
         elif self.method in LEARNED_METHODS:
-            options["model_sha256"] = network_sha256(self.model)
+            options.update(network_fingerprint(self.model))
         return options
 
 

@@ -119,7 +119,7 @@ class PairOptions:
         """What decides a pair's outputs, as stored in its record: these options and, for
         a learned method, the sha256 of the network files the model card names."""
         from cade_cli.matching import LEARNED_METHODS
-        from cade_cli.model_card import network_sha256
+        from cade_cli.model_card import network_fingerprint
 
         options = asdict(self)
         del options["strict"]
@@ -134,7 +134,7 @@ class PairOptions:
         else:  # the rig by its content, wherever its file lies
             options["rig"] = file_sha256(Path(self.rig))
         if self.method in LEARNED_METHODS:
-            options["model_sha256"] = network_sha256(self.model)
+            options.update(network_fingerprint(self.model))
         return options
 
 
