@@ -42,3 +42,37 @@ def test_the_ecc_anchor_follows_a_plane_that_the_rotations_alone_miss(tmp_path, 
     assert np.array_equal(ecc.bands[reference], rotations.bands[reference])  # the reference: its raw values
     for name, image in ecc.bands.items():
         assert image.shape == (capture.size[1], capture.size[0]) and image.dtype == np.float32
+
+
+def test_the_ecc_anchor_starts_from_the_sparse_plane_when_the_rotations_and_features_fail(tmp_path, rng, monkeypatch):
+    """The third start: ECC from register-capture's own cross-spectral plane, taken only when ECC
+    from the rotations and the feature homography both fail; it must still find the ground."""
+    import cade_cli.capture.anchors as anchors
+    from cade_cli.errors import CadeError
+
+    scene = write_capture(tmp_path / "flat", rng, depth=1.5, hill=0.0)
+    capture = load_capture(scene.paths)
+    real_ecc = anchors.ecc_homography
+
+    def ecc_refusing_the_identity(reference, band, init=None):
+        if init is None:
+            raise CadeError("did not converge")
+        return real_ecc(reference, band, init=init)
+
+    def no_features(reference, band):
+        raise CadeError("too few feature matches")
+
+    monkeypatch.setattr(anchors, "ecc_homography", ecc_refusing_the_identity)
+    monkeypatch.setattr(anchors, "feature_homography", no_features)
+    ecc = register_anchor(capture, ecc=True)
+    assert not ecc.failures and set(ecc.starts.values()) == {"plane"}
+    for name, errors in _errors(capture, ecc, scene.truth).items():
+        assert np.mean(errors < 0.5) > 0.95 and np.median(errors) < 0.25, (name, np.median(errors))
+
+    monkeypatch.setattr(anchors, "plane_homography", lambda reference, band: (_ for _ in ()).throw(
+        CadeError("too few cross-spectral matches")))
+    failed = register_anchor(capture, ecc=True)
+    assert sorted(failed.failures) == sorted(set(capture.names()) - {capture.reference_band.name})
+    reasons = next(iter(failed.failures.values()))
+    assert "from the rotations: did not converge" in reasons and "from the features: too few" in reasons
+    assert "from the plane: too few cross-spectral matches" in reasons and "\n" not in reasons
