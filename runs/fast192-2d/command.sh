@@ -10,16 +10,15 @@
 # this 2-core machine: OMP_NUM_THREADS=1 runs/fast192-2d/command.sh --threads 1.
 # --shadows 0.3 from the checkpoint of step 23,500 on (session 23: its ablation, runs/lever-shadows against
 # runs/anneal-42000, models/README.md); the steps before it ran without (this file's earlier versions in git).
-# The self-supervised lever (--selfsup-dir ../shared/data/micasense --selfsup-share 0.25 --selfsup-weight 2: a quarter
-# of the pairs cut from real multi-lens band pairs without ground truth, trained by gradient consistency) from the
-# checkpoint of step 36,500 on (session 26: its ablation, runs/lever-selfsup against runs/lever-selfsup-control and
-# -control-seed31: msir-outdoor EPE 1.184 against 1.267 / 1.291, Middlebury inside the two controls' spread;
-# models/README.md). Its rectified pairs are cached in $CADE_CACHE_DIR/selfsup-pairs, else runs/fast192-2d/selfsup-pairs.
+# The self-supervised lever (--selfsup-dir ../shared/data/micasense --selfsup-share 0.25 --selfsup-weight 2) ran steps
+# 36,500-37,000 and was dropped (session 26): at step 37,000 the campaign with it validated msir-outdoor 1.474 / 8.52 and
+# Middlebury 2014 CS 4.86 / 30.4, the same run without it (runs/control-36000-37000, the same batches from the committed
+# step 36,000) 1.026 / 4.80 and 4.72 / 29.7. The campaign goes on from the control's checkpoint of step 37,000; the
+# lever's 500 steps are kept as runs/lever-campaign-36500 (logs only).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/fast192-2d --architecture cadenet2d \
   --init runs/fast-2d/last.pt --init-partial \
   --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \
   --textures ../shared/data/textures --data-dir ../shared/data \
   --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
-  --ground 0.3 --shadows 0.3 --selfsup-dir ../shared/data/micasense --selfsup-share 0.25 --selfsup-weight 2 \
-  --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 33 \
+  --ground 0.3 --shadows 0.3 --steps 60000 --batch 4 --height 192 --width 320 --lr 1e-3 --warmup 500 --seed 33 \
   --device cpu --threads 2 --workers 0 --validate-every 1000 --validate-rgb "$@"
