@@ -126,7 +126,6 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
     return _parse_card(path, stat.st_mtime_ns, stat.st_size)
 
 
-@functools.lru_cache(maxsize=16)
 def network_fingerprint(model: str | Path | None = None) -> dict:
     """What of the card of ``model`` (default: the shipped one) decides a learned method's output,
     as a batch record stores it, so that a changed card re-runs its pairs: the sha256 of every
@@ -141,6 +140,7 @@ def network_fingerprint(model: str | Path | None = None) -> dict:
     return fingerprint
 
 
+@functools.lru_cache(maxsize=16)
 def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
     """The card at ``path``, parsed once per version of the file (``mtime_ns`` and ``size``
     key the cache): the matcher asks for it on every pair and every tile."""

@@ -88,6 +88,21 @@ def model_dir_card() -> Path:
     return model_card.card_path()
 
 
+def test_a_card_is_parsed_once_per_version_of_its_file(tmp_path: Path):
+    """The matcher reads the card on every pair and tile: an unchanged file gives the parsed card
+    back from the cache; a changed one (here: a test-time pass added) is read again."""
+    card = json.loads(model_card.card_path(DEFAULT_MODEL).read_text())
+    path = tmp_path / "card.json"
+    path.write_text(json.dumps(card))
+    first = model_card.read_card(path)
+    assert model_card.read_card(path) is first
+    card["test_time_augmentation"] = ["upscaled-x1.5"]
+    path.write_text(json.dumps(card, indent=1))  # another size, so another version whatever the clock
+    changed = model_card.read_card(path)
+    assert changed is not first and changed.test_time == ("upscaled-x1.5",)
+    assert model_card.network_fingerprint(path)["test_time_augmentation"] == ["upscaled-x1.5"]
+
+
 def test_variant_choice_prefers_full_resolution_then_the_narrowest_search():
     card = ModelCard("m", tuple(ModelVariant(Path(f"m{d}.onnx"), "", d) for d in (256, 128, 96, 192)), 8)
     margin = network.RANGE_MARGIN
