@@ -58,13 +58,14 @@ class LearnedPipeline:
         # corrections would scatter it. Occluded pixels have nothing to match: not refined.
         valid = visible_in_right_view(network)
         disparity, agreement = network, None
-        if self.refinement is not None and self.network.card().refinement != "none":
-            weights = self.network.card().chooser  # the card's learned choice, else the 32 px rule
+        card = self.network.card()
+        if self.refinement is not None and card.refinement != "none":
+            weights = card.chooser  # the card's learned choice, else the 32 px rule
             chooser = Chooser.from_dict(weights) if weights is not None else None
             choose = None if chooser is None else (
                 lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
             refinement = self.refinement
-            if self.network.card().refinement == "rank-sgbm-network-range":
+            if card.refinement == "rank-sgbm-network-range":
                 refinement = replace(refinement, network_range=NETWORK_RANGE_MARGIN)
             refined, taken = refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
