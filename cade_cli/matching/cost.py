@@ -47,6 +47,10 @@ def census_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     return signature
 
 
+RANK_ROWS = 128
+"""Rows of image :func:`rank_transform` compares at once."""
+
+
 def rank_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     """Rank of every pixel in its window: how many of its neighbours are darker than it.
 
@@ -69,31 +73,30 @@ def rank_transform(image: np.ndarray, *, window: int = 7) -> np.ndarray:
     for top in range(0, height, RANK_ROWS):
         bottom = min(height, top + RANK_ROWS)
         centre, block = padded[top + radius:bottom + radius, radius:radius + width], rank[top:bottom]
-        for dy in range(window):
-            for dx in range(window):
-                if dy != radius or dx != radius:
-                    # OpenCV's compare gives 255 where darker: subtracting it adds 1 modulo 256 (the same
-                    # ranks as summing the bool planes ``neighbour < image``, in 60 % of the time)
-                    neighbour = padded[top + dy:bottom + dy, dx:dx + width]
-                    np.subtract(block, cv2.compare(neighbour, centre, cv2.CMP_LT), out=block)
+        for neighbour in _padded_neighbours(padded, window, top, bottom, width):
+            # OpenCV's compare gives 255 where darker: subtracting it adds 1 modulo 256 (the same
+            # ranks as summing the bool planes ``neighbour < image``, in 60 % of the time)
+            np.subtract(block, cv2.compare(neighbour, centre, cv2.CMP_LT), out=block)
     return rank
-
-
-RANK_ROWS = 128
-"""Rows of image :func:`rank_transform` compares at once."""
 
 
 def _neighbours(image: np.ndarray, window: int) -> Iterator[np.ndarray]:
     """For each neighbour in a ``window`` x ``window`` box (row by row, centre skipped),
     the (H, W) plane of that neighbour's values: views of the float32 copy of ``image``
     padded by replicating its borders."""
-    radius = window // 2
     height, width = image.shape
-    padded = np.pad(image.astype(np.float32, copy=False), radius, mode="edge")
+    padded = np.pad(image.astype(np.float32, copy=False), window // 2, mode="edge")
+    return _padded_neighbours(padded, window, 0, height, width)
+
+
+def _padded_neighbours(padded: np.ndarray, window: int, top: int, bottom: int, width: int) -> Iterator[np.ndarray]:
+    """:func:`_neighbours`' planes for the image rows ``top`` .. ``bottom`` - 1 only, read from the
+    image already ``padded`` by ``window // 2`` on every side."""
+    radius = window // 2
     for dy in range(window):
         for dx in range(window):
             if dy != radius or dx != radius:
-                yield padded[dy:dy + height, dx:dx + width]
+                yield padded[top + dy:bottom + dy, dx:dx + width]
 
 
 def census_cost(
