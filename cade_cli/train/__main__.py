@@ -19,7 +19,9 @@ def default_selfsup_cache(out: Path) -> Path:
     """``$CADE_CACHE_DIR/selfsup-pairs`` when that is set, else ``OUT/selfsup-pairs``."""
     import os
 
-    root = os.environ.get("CADE_CACHE_DIR")
+    from cade_cli.data.msir import CACHE_ENV
+
+    root = os.environ.get(CACHE_ENV)
     return Path(root) / "selfsup-pairs" if root else out / "selfsup-pairs"
 
 
