@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Where a candidate loses pixels a shipped model got right: the bad-3 pixels of map B that are good
 in map A, described against the scene (row band, image border, ground-truth disparity, brightness,
-texture, B's signed error), and their largest clusters.
+texture, B's signed error, the pixels whose match lies outside the right view), and their largest clusters.
 
     .venv/bin/python benchmarks/lost_pixels.py --gt GT --image LEFT A.pfm B.pfm
 
@@ -49,6 +49,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{name}: median {np.median(values[lost]):.1f} where lost, {np.median(values[valid]):.1f} over all valid")
     print(f"signed error where lost: candidate median {np.median((b - gt)[lost]):+.2f} px, "
           f"shipped {np.median((a - gt)[lost]):+.2f} px")
+    unseen = valid & (np.arange(width)[None, :] < np.nan_to_num(gt))  # x - d < 0: no match in the right view
+    print(f"out of the right view (x < true disparity): {100 * unseen.sum() / valid.sum():.1f} % of the valid pixels, "
+          f"{100 * (lost & unseen).sum() / max(lost.sum(), 1):.0f} % of the lost ones; bad-3 there "
+          f"{100 * bad_a[unseen].mean():.1f} % shipped, {100 * bad_b[unseen].mean():.1f} % candidate (in view "
+          f"{100 * bad_a[valid & ~unseen].mean():.1f} %, {100 * bad_b[valid & ~unseen].mean():.1f} %)"
+          if unseen.any() else "out of the right view (x < true disparity): no valid pixel")
     count, _, stats, _ = cv2.connectedComponentsWithStats(lost.astype(np.uint8))
     largest = sorted(stats[1:], key=lambda s: -s[4])[:5]
     print("largest clusters (x, y, w, h, pixels): " + "; ".join(", ".join(str(int(v)) for v in s) for s in largest))
