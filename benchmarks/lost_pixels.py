@@ -50,11 +50,14 @@ def main(argv: list[str] | None = None) -> None:
     print(f"signed error where lost: candidate median {np.median((b - gt)[lost]):+.2f} px, "
           f"shipped {np.median((a - gt)[lost]):+.2f} px")
     unseen = valid & (np.arange(width)[None, :] < np.nan_to_num(gt))  # x - d < 0: no match in the right view
-    print(f"out of the right view (x < true disparity): {100 * unseen.sum() / valid.sum():.1f} % of the valid pixels, "
-          f"{100 * (lost & unseen).sum() / max(lost.sum(), 1):.0f} % of the lost ones; bad-3 there "
-          f"{100 * bad_a[unseen].mean():.1f} % shipped, {100 * bad_b[unseen].mean():.1f} % candidate (in view "
-          f"{100 * bad_a[valid & ~unseen].mean():.1f} %, {100 * bad_b[valid & ~unseen].mean():.1f} %)"
-          if unseen.any() else "out of the right view (x < true disparity): no valid pixel")
+    if unseen.any():
+        seen = valid & ~unseen
+        print(f"out of the right view (x < true disparity): {100 * unseen.sum() / valid.sum():.1f} % of the valid "
+              f"pixels, {100 * (lost & unseen).sum() / max(lost.sum(), 1):.0f} % of the lost ones; bad-3 there "
+              f"{100 * bad_a[unseen].mean():.1f} % shipped, {100 * bad_b[unseen].mean():.1f} % candidate (in view "
+              f"{100 * bad_a[seen].mean():.1f} %, {100 * bad_b[seen].mean():.1f} %)")
+    else:
+        print("out of the right view (x < true disparity): no valid pixel")
     count, _, stats, _ = cv2.connectedComponentsWithStats(lost.astype(np.uint8))
     largest = sorted(stats[1:], key=lambda s: -s[4])[:5]
     print("largest clusters (x, y, w, h, pixels): " + "; ".join(", ".join(str(int(v)) for v in s) for s in largest))

@@ -14,10 +14,10 @@ session, in alternating order, so a slow spell of a shared machine falls on all 
 the mean seconds a pair, and the median over the timed runs of each one's time over the
 baseline's in the same round. Pause training runs meanwhile.
 
-The options that the shipped sessions use are :func:`cade_cli.matching.network.onnx_session`'s;
-in isolation (the network alone, nothing else between runs) the arena and spinning make
-onnxruntime's run up to a third faster, which this measures inside the matcher instead
-(models/README.md, "Session 27").
+The options that the shipped sessions use are :func:`cade_cli.matching.network.onnx_session`'s
+(spinning off, no arena, the pattern on: the entry ``0,0,1``). Run alone (the network, nothing
+else between runs) the arena and spinning looked faster; this measures them inside the matcher
+instead (models/README.md, "Session 27").
 """
 
 from __future__ import annotations

@@ -41,8 +41,8 @@ def test_shipped_models_match_their_cards(name):
 
 def test_sessions_do_not_busy_wait_after_a_run():
     """Each run hands the cores to OpenCV's refinement; onnxruntime threads still spinning after
-    it would hold them (they may spin within a run: models/README.md, session 27). Spinning
-    threads burn about 50 ms of this process's CPU in the half second after a run; idle ones none."""
+    it would hold them (models/README.md, session 9). Spinning threads burn about 50 ms of this
+    process's CPU in the half second after a run; idle ones none (session 27)."""
     variant = read_card().variants[0]
     session = network.onnx_session(variant.path, variant.sha256)
     feeds = {item.name: np.zeros((1, 1, 64, 96), np.float32) for item in session.get_inputs()}
