@@ -4,9 +4,10 @@
 #   benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]
 #
 # 1. exports CHECKPOINT (a `fit` run's last.pt) as OUT_DIR/NAME.onnx + NAME.json, with the runtime's
-#    rank-SGBM refinement;
+#    rank-SGBM refinement (REFINEMENT: another of `export --runtime-refinement`'s, e.g. rank-sgbm-two-scales);
 # 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
-#    (32 hidden units, 4,000 steps, seed 0), and writes it into the card;
+#    (32 hidden units, 4,000 steps, seed 0), and writes it into the card; CHOOSER_CANDIDATES fits it on
+#    another refinement's matches (`train chooser --candidates`, e.g. rank-sgbm under a two-scale card);
 # 3. runs `cade benchmark` on the five sets (Middlebury 2005 and 2014, FlyingThings3D, KITTI 2012 and
 #    2015; protocols cs and rgb) and on the real cross-spectral check (msir-outdoor: VIS/NIR pairs of a
 #    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v11)
@@ -26,12 +27,13 @@ checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v11}
 data=../shared/data
 hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
 mkdir -p "$out"
-.venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" --runtime-refinement rank-sgbm \
+.venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" --runtime-refinement "${REFINEMENT:-rank-sgbm}" \
   --hardware "$hardware"
-scenes=()
-[ -n "${CHOOSER_SCENES:-}" ] && scenes=(--scenes "$CHOOSER_SCENES")
+chooser_options=()
+[ -n "${CHOOSER_SCENES:-}" ] && chooser_options=(--scenes "$CHOOSER_SCENES")
+[ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
-  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${scenes[@]}"
+  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${chooser_options[@]}"
 runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \

@@ -29,12 +29,15 @@ CARD_FORMAT = 2
 """Version of the card layout; format 1 (sessions 1-11) named ``levels`` ``max_disp``."""
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
-DEFAULT_MODEL = "cade-v11"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v11-accurate"}
-"""``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v11 since
-session 20 (cade-v10 in session 19). accurate: since session 26 cade-v11-accurate, the same network
-with a second pass on the pair enlarged 1.5x fused in (``test_time_augmentation: ["upscaled-x1.5"]``),
-which passed Accuracy IV's shipping rule against cade-v11 on every set (models/cade-v11-accurate.md)."""
+DEFAULT_MODEL = "cade-v12"
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v12-accurate"}
+"""``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v12 since
+session 28 (the fast design's campaign, step 40,250 annealed, with the two-scale refinement; it
+passed Accuracy IV's shipping rule against cade-v11 on every set, models/cade-v12.md), cade-v11
+in sessions 20-27, cade-v10 in session 19. accurate: cade-v12-accurate since session 28, the same
+network with a second pass on the pair enlarged 1.5x fused in (``test_time_augmentation:
+["upscaled-x1.5"]``), which passed the rule against cade-v11-accurate on every set
+(models/cade-v12-accurate.md); cade-v11-accurate, cade-v11 so enlarged, in sessions 26-27."""
 
 
 def model_dir() -> Path:
@@ -84,7 +87,10 @@ class ModelCard:
     card's ``runtime_refinement``): SGBM of the rank-transformed raw bands (every card
     before Accuracy III, and cards without the field), the same search narrowed to the
     network's own range (``rank-sgbm-network-range``: fewer disparities, less time;
-    :attr:`cade_cli.matching.refinement.RankSgbmRefinement.network_range`), or nothing
+    :attr:`cade_cli.matching.refinement.RankSgbmRefinement.network_range`), the whole-range
+    search with its rejected pixels offered a second SGBM's match on the bands at half size
+    (``rank-sgbm-two-scales``: weakly textured regions; about a tenth more of SGBM's time;
+    :attr:`cade_cli.matching.refinement.RankSgbmRefinement.half_size`), or nothing
     (``none``: the network's map is the answer, at the network's speed)."""
     context: int = DEFAULT_CONTEXT_PX
     """Px of image around a pixel that move the network's estimate there (the card's
@@ -99,7 +105,7 @@ class ModelCard:
     (:mod:`cade_cli.matching.augmentation`). Applied in the card's order. Empty: one pass."""
 
 
-RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "none")
+RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "rank-sgbm-two-scales", "none")
 TEST_TIME_AUGMENTATIONS = ("vertical-flip", "upscaled-x1.5", "upscaled-x2", "mirrored")
 
 

@@ -145,13 +145,17 @@ def test_manifest_with_per_pair_range(cameras, capsys):
 
 
 def test_a_record_tells_the_tiers_apart_though_they_share_a_network():
-    """cade-v11-accurate names cade-v11's ONNX file: the record's fingerprint must still differ (its
-    second pass changes every output), and the fast tier's must stay as records before it wrote it."""
+    """The accurate tier's card names the fast tier's ONNX file: the record's fingerprint must still
+    differ (its second pass changes every output); a card's non-default refinement enters it too, and
+    a card with neither (cade-v11) keeps the fingerprint records had before those fields existed."""
     fast = PairOptions(method="cade", model="fast").fingerprint()
-    accurate = PairOptions(method="cade", model="cade-v11-accurate").fingerprint()
+    accurate = PairOptions(method="cade", model="accurate").fingerprint()
     assert fast["model_sha256"] == accurate["model_sha256"]
-    assert "test_time_augmentation" not in fast and "runtime_refinement" not in fast
+    assert fast != accurate and "test_time_augmentation" not in fast
     assert accurate["test_time_augmentation"] == ["upscaled-x1.5"]
+    assert fast["runtime_refinement"] == accurate["runtime_refinement"] == "rank-sgbm-two-scales"
+    legacy = PairOptions(method="cade", model="cade-v11").fingerprint()
+    assert "model_sha256" in legacy and not {"test_time_augmentation", "runtime_refinement"} & set(legacy)
     assert "model_sha256" not in PairOptions(method="sgbm").fingerprint()
 
 

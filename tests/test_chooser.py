@@ -10,10 +10,11 @@ import pytest
 
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.chooser import AGREE, FEATURES, Chooser, chooser_features, disputed
-from cade_cli.matching.learned import LearnedPipeline
+from cade_cli.matching.learned import LearnedPipeline, card_refinement
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
-from cade_cli.model_card import card_path, read_card
+from cade_cli.model_card import read_card
+from cards import card_copy
 from synthetic import render_pair
 
 
@@ -73,14 +74,7 @@ def test_the_weights_round_trip_through_a_card_dict():
 def model_with_chooser(folder: Path, bias: float) -> Path:
     """A copy of the shipped card in ``folder`` (its ONNX files linked) whose chooser
     always (bias > 0) or never (bias < 0) takes the accepted match."""
-    shipped = card_path()
-    card = json.loads(shipped.read_text())
-    for variant in card["variants"]:
-        (folder / variant["file"]).symlink_to(shipped.parent / variant["file"])
-    card["chooser"] = constant_chooser(bias).to_dict()
-    path = folder / "chooser-test.json"
-    path.write_text(json.dumps(card))
-    return path
+    return card_copy(folder, "chooser-test", chooser=constant_chooser(bias).to_dict())
 
 
 @pytest.mark.parametrize("bias", [30.0, -30.0])
@@ -95,7 +89,8 @@ def test_the_pipeline_uses_the_cards_chooser_instead_of_the_32_px_rule(tmp_path:
     stage = NetworkStage(model=str(path))
     result = LearnedPipeline(network=stage)(pair.left, pair.right, disparity_range)
     network = stage(pair.left, pair.right, disparity_range)
-    match, accepted = RankSgbmRefinement().candidate(pair.left, pair.right, network, 31)
+    refinement = card_refinement(read_card(path), RankSgbmRefinement())  # the shipped card's, as the pipeline's
+    match, accepted = refinement.candidate(pair.left, pair.right, network, 31)
     taken = accepted if bias > 0 else accepted & (np.abs(match - network) <= AGREE)
     expected = np.where(taken, np.clip(match, 0, 31), network)
     np.testing.assert_allclose(result.disparity[result.valid], expected[result.valid], atol=1e-5)

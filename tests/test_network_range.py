@@ -4,7 +4,6 @@ matches inside them."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ from cade_cli.matching.learned import NETWORK_RANGE_MARGIN, LearnedPipeline
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 from cade_cli.model_card import RUNTIME_REFINEMENTS, card_path, read_card
+from cards import card_copy
 from synthetic import render_pair
 
 NARROW = RankSgbmRefinement(network_range=4)
@@ -57,12 +57,7 @@ def test_a_narrowed_search_finds_the_same_matches_inside_the_networks_range():
 def test_a_card_asks_for_the_narrowed_search(tmp_path: Path, monkeypatch):
     assert "rank-sgbm-network-range" in RUNTIME_REFINEMENTS
     shipped = card_path()
-    card = json.loads(shipped.read_text())
-    for variant in card["variants"]:
-        (tmp_path / variant["file"]).symlink_to(shipped.parent / variant["file"])
-    card["runtime_refinement"] = "rank-sgbm-network-range"
-    path = tmp_path / "narrow.json"
-    path.write_text(json.dumps(card))
+    path = card_copy(tmp_path, "narrow", runtime_refinement="rank-sgbm-network-range")
     assert read_card(path).refinement == "rank-sgbm-network-range"
     searched = []
     original = RankSgbmRefinement.refine_span

@@ -37,9 +37,9 @@ MATCHERS: dict[str, Matcher] = {
         # The network was trained on color-agnostic bands only (it applies the transform
         # itself: its refinement matches the raw bands); memory is bounded by strips and
         # a pyramid, not by the range.
-        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v11), "
-                "refined by SGM of the rank-transformed raw bands over the whole range, kept within 32 px of "
-                "its estimate",
+        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v12), "
+                "refined by SGM of the rank-transformed raw bands over the whole range (and at half size where "
+                "that finds no unique match), a learned chooser deciding where the two disagree",
                 LearnedPipeline(), 8, preprocessing=("cade",), volume_bytes=0),
         # The same network without the refinement: to see what the network alone does
         # (benchmarks/cade_errors.py, the training ablation), not a better matcher.

@@ -26,10 +26,21 @@ from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
+from cade_cli.model_card import ModelCard
 
 NETWORK_RANGE_MARGIN = 4
 """Px searched beyond the network's own range by a card whose ``runtime_refinement`` is
 ``rank-sgbm-network-range`` (:attr:`RankSgbmRefinement.network_range`)."""
+
+
+def card_refinement(card: ModelCard, refinement: RankSgbmRefinement) -> RankSgbmRefinement:
+    """``refinement`` as the card's ``runtime_refinement`` asks for it (the matcher and the
+    chooser's fitting both use this, so a chooser sees the matches it will be asked about)."""
+    if card.refinement == "rank-sgbm-network-range":
+        return replace(refinement, network_range=NETWORK_RANGE_MARGIN)
+    if card.refinement == "rank-sgbm-two-scales":
+        return replace(refinement, half_size=True)
+    return refinement
 
 
 @dataclass(frozen=True)
@@ -64,9 +75,7 @@ class LearnedPipeline:
             chooser = Chooser.from_dict(weights) if weights is not None else None
             choose = None if chooser is None else (
                 lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
-            refinement = self.refinement
-            if card.refinement == "rank-sgbm-network-range":
-                refinement = replace(refinement, network_range=NETWORK_RANGE_MARGIN)
+            refinement = card_refinement(card, self.refinement)
             refined, taken = refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
             agreement = np.where(taken, np.abs(refined - network), np.float32(np.inf))

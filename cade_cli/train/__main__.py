@@ -179,7 +179,9 @@ def export(
     = "disparity",
     runtime_refinement: Annotated[str, typer.Option(help="What the cade matcher does after this network: rank-sgbm "
                                                     "(SGBM of the rank-transformed bands; every model before "
-                                                    "Accuracy III) or none (the network's map as it is).")]
+                                                    "Accuracy III), rank-sgbm-network-range, "
+                                                    "rank-sgbm-two-scales (its rejects offered a half-size "
+                                                    "SGBM's match) or none (the network's map as it is).")]
     = "rank-sgbm",
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
@@ -296,22 +298,32 @@ def chooser(
     seed: int = 0,
     write_card: Annotated[bool, typer.Option(help="Store the chooser in the model's card (the runtime then uses "
                                              "it instead of the 32 px rule).")] = False,
+    candidates: Annotated[str | None, typer.Option(help="Fit on the matches of this runtime refinement "
+                                                   "(rank-sgbm, rank-sgbm-network-range, rank-sgbm-two-scales) "
+                                                   "instead of the card's own.")] = None,
 ) -> None:
     """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
     the six cross-band and three same-band tasks of every train-real scene; print its
     EPE / BMP3 (all pixels, as the pipeline finishes them) beside the fixed 32 px rule's."""
     import json
 
-    from cade_cli.model_card import card_path
+    from cade_cli.model_card import RUNTIME_REFINEMENTS, card_path, read_card
     from cade_cli.train.chooser import SAME_BAND_TASKS, cache_candidates, fit, report, score
 
+    searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
+    if candidates is not None and candidates not in searched:
+        raise typer.BadParameter(f"must be one of {', '.join(searched)}", param_hint="--candidates")
+    fitted_refinement = candidates or read_card(model).refinement
+    # one cache folder per refinement: a scene's npz is reused as it is
+    suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
     names = scenes.split(",") if scenes else None
-    train = cache_candidates("middeval3", real_dir, cache / "train-real", model=model, scenes=names)
+    train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
+                             candidates=candidates)
     chosen = fit(train, hidden=hidden, steps=steps, seed=seed)
     print(f"train-real CS: {report(score(train, chosen))}")
     if data_dir is not None:
         for name in datasets.split(","):
-            files = cache_candidates(name, data_dir, cache / name, model=model)
+            files = cache_candidates(name, data_dir, cache / f"{name}{suffix}", model=model, candidates=candidates)
             print(f"{name} CS: {report(score(files, chosen))}", flush=True)
             if name.startswith("middlebury"):
                 print(f"{name} same-band: {report(score(files, chosen, SAME_BAND_TASKS))}", flush=True)
@@ -322,7 +334,9 @@ def chooser(
         card["chooser"] = {**chosen.to_dict(), "fitted_on": fitted_on,
                            "command": f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
                                       + (f"--scenes {scenes} " if scenes else "")
-                                      + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"}
+                                      + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
+                                      + (f" --candidates {candidates}" if candidates else ""),
+                           "fitted_on_refinement": fitted_refinement}
         path.write_text(json.dumps(card, indent=2) + "\n")
         print(f"wrote the chooser into {path}")
 

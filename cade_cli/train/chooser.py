@@ -16,6 +16,7 @@ into the model's card, where the runtime finds it.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
 from cade_cli.matching.disparity import densify, visible_in_right_view
+from cade_cli.matching.learned import card_refinement
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 
@@ -43,12 +45,17 @@ SAME_BAND_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("rgb
 
 
 def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
-                     scenes: Sequence[str] | None = None) -> list[Path]:
+                     scenes: Sequence[str] | None = None, candidates: str | None = None) -> list[Path]:
     """One npz per scene of ``dataset`` (all, or those named in ``scenes``) in ``out`` (kept
     when it exists), the candidates of ``model``'s network and the rank-SGBM refinement for
-    every task of :data:`PROTOCOLS`; returns the files."""
+    every task of :data:`PROTOCOLS`; returns the files. The refinement is the one the card's
+    ``runtime_refinement`` names, or the one ``candidates`` names."""
     out.mkdir(parents=True, exist_ok=True)
-    network, refinement = NetworkStage(model=model), RankSgbmRefinement()
+    network = NetworkStage(model=model)
+    card = network.card()
+    if candidates is not None:
+        card = replace(card, refinement=candidates)
+    refinement = card_refinement(card, RankSgbmRefinement())
     files = []
     for scene in get_dataset(dataset)(data_dir, scenes=scenes):
         target = out / f"{scene.name.replace('/', '-')}.npz"
