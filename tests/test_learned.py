@@ -39,6 +39,22 @@ def test_shipped_models_match_their_cards(name):
         network.onnx_session(variant.path, variant.sha256)  # verifies the sha256
 
 
+def test_a_session_follows_the_thread_count_set_after_the_first_was_built(monkeypatch):
+    """`use_threads` sets $OMP_NUM_THREADS for pools created later: a model's session is kept per
+    thread count, so a run after the change gets a session with the new count (the count moves
+    cade-v12's maps slightly), and a return to the old count finds the old session."""
+    variant = read_card().variants[0]
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    one = network.onnx_session(variant.path, variant.sha256)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    two = network.onnx_session(variant.path, variant.sha256)
+    assert two is not one
+    assert two.get_session_options().intra_op_num_threads == 2
+    assert one.get_session_options().intra_op_num_threads == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert network.onnx_session(variant.path, variant.sha256) is one
+
+
 def test_sessions_do_not_busy_wait_after_a_run():
     """Each run hands the cores to OpenCV's refinement; onnxruntime threads still spinning after
     it would hold them (models/README.md, session 9). Spinning threads burn about 50 ms of this

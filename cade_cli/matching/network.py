@@ -82,9 +82,19 @@ def choose_variant(card: ModelCard, span: int) -> tuple[ModelVariant, int]:
     return best, factor(best)
 
 
-@functools.lru_cache(maxsize=4)
 def onnx_session(path: Path, sha256: str):
-    """One onnxruntime session per model file, built once after checking its sha256."""
+    """One onnxruntime session per model file and thread count ($OMP_NUM_THREADS as it is now:
+    :func:`cade_cli.evaluation.timing.use_threads` sets it for pools created later), built once
+    after checking its sha256. The count is part of the key because it is part of the output:
+    cade-v12's maps move slightly (far below 0.01 px) between one and two threads on small inputs
+    (cade-v11's do not), so a session kept from before a change of threads would score otherwise
+    than a new one."""
+    return _onnx_session(path, sha256, int(os.environ.get("OMP_NUM_THREADS") or 0))
+
+
+@functools.lru_cache(maxsize=4)
+def _onnx_session(path: Path, sha256: str, threads: int):
+    """:func:`onnx_session`'s session with ``threads`` intra-op threads (0: one per physical core)."""
     if not path.is_file():
         raise CadeError(f"model file {path} not found; set {MODEL_DIR_ENV} to the folder holding it")
     digest = file_sha256(path)
@@ -95,7 +105,7 @@ def onnx_session(path: Path, sha256: str):
 
     options = ort.SessionOptions()
     options.log_severity_level = 3
-    options.intra_op_num_threads = int(os.environ.get("OMP_NUM_THREADS") or 0)  # 0: one per physical core
+    options.intra_op_num_threads = threads
     # The matcher hands the cores to OpenCV (refinement) right after each run; spinning
     # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
     options.add_session_config_entry(ALLOW_SPINNING, "0")
