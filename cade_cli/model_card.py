@@ -29,15 +29,16 @@ CARD_FORMAT = 2
 """Version of the card layout; format 1 (sessions 1-11) named ``levels`` ``max_disp``."""
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
-DEFAULT_MODEL = "cade-v12"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v12-accurate"}
-"""``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v12 since
-session 28 (the fast design's campaign, step 40,250 annealed, with the two-scale refinement; it
-passed Accuracy IV's shipping rule against cade-v11 on every set, models/cade-v12.md), cade-v11
-in sessions 20-27, cade-v10 in session 19. accurate: cade-v12-accurate since session 28, the same
-network with a second pass on the pair enlarged 1.5x fused in (``test_time_augmentation:
-["upscaled-x1.5"]``), which passed the rule against cade-v11-accurate on every set
-(models/cade-v12-accurate.md); cade-v11-accurate, cade-v11 so enlarged, in sessions 26-27."""
+DEFAULT_MODEL = "cade-v13"
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate"}
+"""``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v13 since
+session 28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
+passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it in the same
+session cade-v12 (step 40,250; passed against cade-v11), cade-v11 in sessions 20-27, cade-v10 in
+session 19. accurate: cade-v13-accurate, the same network with a second pass on the pair enlarged
+1.5x fused in (``test_time_augmentation: ["upscaled-x1.5"]``), which passed the rule against
+cade-v12-accurate on every set (models/cade-v13-accurate.md); cade-v12-accurate before it, and
+cade-v11-accurate in sessions 26-27."""
 
 
 def model_dir() -> Path:

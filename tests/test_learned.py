@@ -42,7 +42,7 @@ def test_shipped_models_match_their_cards(name):
 def test_a_session_follows_the_thread_count_set_after_the_first_was_built(monkeypatch):
     """`use_threads` sets $OMP_NUM_THREADS for pools created later: a model's session is kept per
     thread count, so a run after the change gets a session with the new count (the count moves
-    cade-v12's maps slightly), and a return to the old count finds the old session."""
+    the fast design's maps slightly), and a return to the old count finds the old session."""
     variant = read_card().variants[0]
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     one = network.onnx_session(variant.path, variant.sha256)

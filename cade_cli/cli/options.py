@@ -48,10 +48,10 @@ MinDispAutoOption = Annotated[
 
 ModelOption = Annotated[
     Optional[str],
-    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default: cade-v12, "
-                 "models/cade-v12.md) or accurate (cade-v12-accurate: the same network with a second pass on the "
+    typer.Option("--model", help="Network of the learned methods: a tier, fast (the default: cade-v13, "
+                 "models/cade-v13.md) or accurate (cade-v13-accurate: the same network with a second pass on the "
                  "pair enlarged 1.5x, about twice the time), a shipped card's name (cade-v4, cade-v6, cade-v11, "
-                 "cade-v11-accurate: the models before), the path of a "
+                 "cade-v12 and their -accurate cards: the models before), the path of a "
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
 ]

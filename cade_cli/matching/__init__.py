@@ -37,7 +37,7 @@ MATCHERS: dict[str, Matcher] = {
         # The network was trained on color-agnostic bands only (it applies the transform
         # itself: its refinement matches the raw bands); memory is bounded by strips and
         # a pyramid, not by the range.
-        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v12), "
+        Matcher("cade", "CADE network on color-agnostic bands (ONNX via onnxruntime; models/cade-v13), "
                 "refined by SGM of the rank-transformed raw bands over the whole range (and at half size where "
                 "that finds no unique match), a learned chooser deciding where the two disagree",
                 LearnedPipeline(), 8, preprocessing=("cade",), volume_bytes=0),
