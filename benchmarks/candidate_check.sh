@@ -27,8 +27,8 @@ checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v11}
 data=../shared/data
 hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
 mkdir -p "$out"
-.venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" --runtime-refinement "${REFINEMENT:-rank-sgbm}" \
-  --hardware "$hardware"
+.venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" \
+  --runtime-refinement "${REFINEMENT:-rank-sgbm}" --hardware "$hardware"
 chooser_options=()
 [ -n "${CHOOSER_SCENES:-}" ] && chooser_options=(--scenes "$CHOOSER_SCENES")
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")

@@ -85,10 +85,10 @@ def choose_variant(card: ModelCard, span: int) -> tuple[ModelVariant, int]:
 def onnx_session(path: Path, sha256: str):
     """One onnxruntime session per model file and thread count ($OMP_NUM_THREADS as it is now:
     :func:`cade_cli.evaluation.timing.use_threads` sets it for pools created later), built once
-    after checking its sha256. The count is part of the key because it is part of the output:
-    the fast design's maps (cade-v12, cade-v13) move slightly (far below 0.01 px) between one and two
-    threads on small inputs (cade-v11's do not), so a session kept from before a change of threads would score otherwise
-    than a new one."""
+    after checking its sha256. The count is part of the key because it is part of the output: the
+    fast design's maps (cade-v12, cade-v13) move slightly (far below 0.01 px) between one and two
+    threads on small inputs (cade-v11's do not), so a session kept from before a change of threads
+    would score otherwise than a new one."""
     return _onnx_session(path, sha256, int(os.environ.get("OMP_NUM_THREADS") or 0))
 
 

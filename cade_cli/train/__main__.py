@@ -318,12 +318,13 @@ def chooser(
     suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
     names = scenes.split(",") if scenes else None
     train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
-                             candidates=candidates)
+                             candidates=fitted_refinement)
     chosen = fit(train, hidden=hidden, steps=steps, seed=seed)
     print(f"train-real CS: {report(score(train, chosen))}")
     if data_dir is not None:
         for name in datasets.split(","):
-            files = cache_candidates(name, data_dir, cache / f"{name}{suffix}", model=model, candidates=candidates)
+            files = cache_candidates(name, data_dir, cache / f"{name}{suffix}", model=model,
+                                     candidates=fitted_refinement)
             print(f"{name} CS: {report(score(files, chosen))}", flush=True)
             if name.startswith("middlebury"):
                 print(f"{name} same-band: {report(score(files, chosen, SAME_BAND_TASKS))}", flush=True)
