@@ -17,7 +17,8 @@
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
 # card (default: this development VM). CHOOSER_SCENES (comma-separated) fits the chooser on those
 # train-real scenes only: the ones the checkpoint's run held out (fit --real-hold-out). Threads:
-# OMP_NUM_THREADS as set by the caller.
+# OMP_NUM_THREADS as set by the caller; JOBS (default 1) runs that many scenes at a time in step 3
+# (`cade benchmark --jobs`: the same scores, results in scene order).
 set -euo pipefail
 if [ $# -lt 3 ]; then
   echo "usage: benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]" >&2
@@ -37,10 +38,10 @@ chooser_options=()
 runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
-    --protocol cs,rgb --json "$out/$dataset.json" > "$out/$dataset.md"
+    --protocol cs,rgb --jobs "${JOBS:-1}" --json "$out/$dataset.json" > "$out/$dataset.md"
   runs+=("$out/$dataset.json")
 done
 .venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
-  --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
+  --jobs "${JOBS:-1}" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
 runs+=("$out/msir-outdoor.json")
 exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" "${runs[@]}"

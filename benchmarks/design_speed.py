@@ -4,9 +4,15 @@
 
 Each design is built with its untrained weights (the time depends on the graph and the size,
 not on the weights), exported to ONNX the way a trained one is (:func:`cade_cli.train.export.export_onnx`)
-and run by onnxruntime on random bands: two untimed runs, then the median of ``--runs``. The
-first design is the campaign's; the ratio column is each design's time over it. Pause any
-training run while timing: the seconds hold only on a quiet CPU.
+and run by onnxruntime on random bands: two untimed runs each, then ``--runs`` rounds in which
+every design runs once in turn (so a drift of the machine's speed reaches all designs alike;
+timing one design after another let the first one measured take up to twice the time of the
+same design timed again at the end); the median of its rounds. The first design is the
+reference (the campaign's, or the fast design's with ``--fast``); the ratio column is each
+design's time over it. Pause any training run while timing: the seconds hold only on a quiet
+CPU.
+
+    OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --fast --runs 15
 """
 
 from __future__ import annotations
@@ -48,6 +54,19 @@ DESIGNS = {
                                           "levels": 128, "slice_channels": 0},
     "f32 w64 (wider)": {**CAMPAIGN, "width2d": 64},
 }
+FAST = {**CAMPAIGN, "features2d": 16, "width2d": 32, "half_channels": 8}
+FAST_DESIGNS = {
+    "the fast design (f16 w32 h8, 192 levels: cade-v12, cade-v13)": FAST,
+    **{f"the fast design, {levels} levels": {**FAST, "levels": levels} for levels in (128, 96, 64)},
+    "the fast design, no per-disparity stage": {**FAST, "slice_channels": 0},
+    "the fast design, U-Net w24": {**FAST, "width2d": 24},
+    "lean: U-Net w24, h4, no per-disparity stage": {**FAST, "width2d": 24, "half_channels": 4, "slice_channels": 0},
+    "lean, 96 levels": {**FAST, "width2d": 24, "half_channels": 4, "slice_channels": 0, "levels": 96},
+    "leaner: f12, U-Net w16, h4, no per-disparity stage, 96 levels": {
+        **FAST, "features2d": 12, "width2d": 16, "half_channels": 4, "slice_channels": 0, "levels": 96},
+}
+"""``--fast``: the shipped fast design against narrower searches (its weights depend on the
+range, so a narrower twin is a network of its own) and smaller stages (Accuracy IV, item 3)."""
 
 
 def int8_twin(path: Path, width: int, height: int) -> Path:
@@ -73,48 +92,57 @@ def int8_twin(path: Path, width: int, height: int) -> Path:
     return target
 
 
-def seconds_per_run(path: Path, width: int, height: int, threads: int, runs: int) -> float:
+def seconds_per_run(paths: list[Path], width: int, height: int, threads: int, runs: int) -> list[float]:
+    """The median seconds of one run of each network in ``paths``, timed in ``runs`` rounds of
+    one run each (module docstring), after two untimed runs each."""
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
-    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    sessions = [ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"]) for path in paths]
     rng = np.random.default_rng(0)
-    feeds = {item.name: rng.random((1, 1, height, width), dtype=np.float32) for item in session.get_inputs()}
-    for _ in range(2):
-        session.run(None, feeds)
-    times = []
+    feeds = {name: rng.random((1, 1, height, width), dtype=np.float32) for name in ("left", "right")}
+    for session in sessions:
+        for _ in range(2):
+            session.run(None, feeds)
+    times: list[list[float]] = [[] for _ in sessions]
     for _ in range(runs):
-        started = time.perf_counter()
-        session.run(None, feeds)
-        times.append(time.perf_counter() - started)
-    return statistics.median(times)
+        for session, taken in zip(sessions, times):
+            started = time.perf_counter()
+            session.run(None, feeds)
+            taken.append(time.perf_counter() - started)
+    return [statistics.median(taken) for taken in times]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", default="720x496", help="WIDTHxHEIGHT of the bands (multiples of 16)")
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--runs", type=int, default=5)
+    parser.add_argument("--runs", type=int, default=5, help="rounds: each design runs once a round")
+    parser.add_argument("--fast", action="store_true", help="the fast design's table (FAST_DESIGNS) instead of DESIGNS")
     parser.add_argument("--only", nargs="*", help="designs to time besides the first (names from the table; default all)")
     parser.add_argument("--int8", action="store_true", help="also time each design's static int8 twin")
+    parser.add_argument("--keep", type=Path, help="write the exported designs here (designN.onnx, in table order), "
+                        "e.g. for benchmarks/network_profile.py")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
     torch.manual_seed(0)
-    folder = Path(tempfile.mkdtemp())
+    folder = args.keep or Path(tempfile.mkdtemp())
+    folder.mkdir(parents=True, exist_ok=True)
+    designs = [(name, config) for index, (name, config) in enumerate((FAST_DESIGNS if args.fast else DESIGNS).items())
+               if not args.only or name in args.only or not index]
+    nets, paths = [], []
+    for index, (_, config) in enumerate(designs):
+        nets.append(network_of(config).eval())
+        paths.append(folder / f"design{index}.onnx")
+        export_onnx(nets[-1], paths[-1])
+    seconds = seconds_per_run(paths, width, height, args.threads, args.runs)
+    int8 = (seconds_per_run([int8_twin(path, width, height) for path in paths], width, height, args.threads, args.runs)
+            if args.int8 else [])
     print(f"| design | parameters | s / run at {width}x{height} | ratio |" + (" int8 s / run | ratio |" if args.int8 else "")
           + "\n|---|---:|---:|---:|" + ("---:|---:|" if args.int8 else ""))
-    reference = None
-    for index, (name, config) in enumerate(DESIGNS.items()):
-        if args.only and name not in args.only and index:
-            continue
-        net = network_of(config).eval()
-        path = folder / f"design{index}.onnx"
-        export_onnx(net, path)
-        seconds = seconds_per_run(path, width, height, args.threads, args.runs)
-        reference = reference or seconds
-        row = f"| {name} | {parameter_count(net):,} | {seconds:.3f} | {seconds / reference:.2f} |"
+    for index, ((name, _), net) in enumerate(zip(designs, nets)):
+        row = f"| {name} | {parameter_count(net):,} | {seconds[index]:.3f} | {seconds[index] / seconds[0]:.2f} |"
         if args.int8:
-            int8 = seconds_per_run(int8_twin(path, width, height), width, height, args.threads, args.runs)
-            row += f" {int8:.3f} | {int8 / reference:.2f} |"
+            row += f" {int8[index]:.3f} | {int8[index] / seconds[0]:.2f} |"
         print(row, flush=True)
 
 
