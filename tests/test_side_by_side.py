@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.chooser import FEATURES, ROWS, Chooser, chooser_features, disputed
 from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.refinement import RankSgbmRefinement
 from cade_cli.matching.side_by_side import side_by_side
@@ -72,15 +72,23 @@ def test_the_chooser_decides_the_same_on_one_thread_or_two(opencv_threads):
     assert 0 < results[2][1].sum() < accepted.sum()  # the chooser took some disputed matches, not all
 
 
-def test_the_probability_of_each_row_does_not_depend_on_the_others():
-    """``Chooser.take`` splits the disputed pixels in two halves: each row's probability must
-    be the one the whole batch gives it."""
+@pytest.mark.parametrize("rows", [20_001, 4_097, 2_048, 5])
+def test_the_probability_of_each_row_does_not_depend_on_the_others(rows):
+    """``Chooser.take`` splits the disputed pixels in two halves (at a multiple of ``ROWS``, where
+    ``Chooser.split`` says): each row's probability must be the one the whole batch gives it, and
+    the perceptron's (float64, by NumPy) within float32 rounding."""
     rng = np.random.default_rng(5)
     chooser = Chooser(rng.normal(size=(len(FEATURES), 32)).astype(np.float32), rng.normal(size=33).astype(np.float32))
-    features = rng.normal(size=(20_001, len(FEATURES))).astype(np.float32)
+    features = rng.normal(size=(rows, len(FEATURES))).astype(np.float32)
     whole = chooser.probability(features)
-    halves = np.concatenate([chooser.probability(features[:10_000]), chooser.probability(features[10_000:])])
+    cut = Chooser.split(rows)
+    assert cut % ROWS == 0 or cut == rows
+    assert abs(cut - rows / 2) <= ROWS
+    halves = np.concatenate([chooser.probability(features[:cut]), chooser.probability(features[cut:])])
     np.testing.assert_array_equal(whole, halves)
+    hidden = np.maximum(features.astype(np.float64) @ chooser.hidden, 0)
+    expected = 1 / (1 + np.exp(-(hidden @ chooser.output[:-1] + chooser.output[-1])))
+    np.testing.assert_allclose(whole, expected, atol=1e-5)
 
 
 def test_the_refinements_ranks_are_each_bands_own(opencv_threads, monkeypatch):

@@ -29,6 +29,24 @@ without asking the chooser (the two agree; the match is the sharper, sub-pixel o
 chooser decides only the disputed pixels, a third of the accepted ones on Middlebury."""
 
 
+ROWS = 2048
+"""The perceptron's products run on blocks of this many rows, the last one padded with zeros:
+OpenCV's ``gemm`` rounds a row by where it lies in the block and how many rows follow it (on
+an AMD EPYC VM, rows of a 10,000-row half came out otherwise than the same rows of the
+20,001-row whole: models/README.md, session 29), so a row's probability is reproducible only
+at the same place in a block of the same size. :meth:`Chooser.take` splits its rows at a
+multiple of this."""
+
+
+def _aligned(rows: int, columns: int) -> np.ndarray:
+    """A zeroed (rows, columns) float32 array whose data starts on a 64-byte boundary, so that
+    every block's product reads its rows at the same alignment."""
+    size = rows * columns
+    buffer = np.zeros(size + 16, np.float32)
+    start = (-buffer.ctypes.data % 64) // 4
+    return buffer[start:start + size].reshape(rows, columns)
+
+
 def _box(image: np.ndarray, side: int) -> np.ndarray:
     return cv2.blur(image.astype(np.float32), (side, side), borderType=cv2.BORDER_REFLECT)
 
@@ -129,18 +147,31 @@ class Chooser:
                 "threshold": self.threshold}
 
     def probability(self, features: np.ndarray) -> np.ndarray:
-        """float32 probability from features (..., F): one per pixel.
+        """float32 probability from features (..., F): one per pixel; each row's value depends
+        only on the row and its place in its block of :data:`ROWS` rows.
 
         The products are OpenCV's ``gemm``, not NumPy's ``@``: a BLAS call leaves
         OpenBLAS's threads busy-waiting on the cores the next pair's network and SGBM need
         (:func:`cade_cli.matching.refinement.correlation` says the same)."""
         count = features.shape[-1]
-        flat = np.ascontiguousarray(features.reshape(-1, count), np.float32)
-        if flat.shape[0] == 0:
-            return np.zeros(features.shape[:-1], np.float32)
-        hidden = np.maximum(cv2.gemm(flat, self.hidden, 1.0, None, 0.0), 0)
-        logits = cv2.gemm(hidden, self.output[:-1, None], 1.0, None, 0.0)[:, 0] + self.output[-1]
+        flat = features.reshape(-1, count)
+        logits = np.empty(flat.shape[0], np.float32)
+        block, hidden, out = _aligned(ROWS, count), _aligned(ROWS, self.hidden.shape[1]), _aligned(ROWS, 1)
+        for start in range(0, flat.shape[0], ROWS):
+            rows = flat[start:start + ROWS]
+            block[:len(rows)], block[len(rows):] = rows, 0
+            cv2.gemm(block, self.hidden, 1.0, None, 0.0, dst=hidden)
+            np.maximum(hidden, 0, out=hidden)
+            cv2.gemm(hidden, self.output[:-1, None], 1.0, None, 0.0, dst=out)
+            logits[start:start + len(rows)] = out[:len(rows), 0]
+        logits += self.output[-1]
         return (1 / (1 + np.exp(-np.clip(logits, -30, 30)))).reshape(features.shape[:-1]).astype(np.float32)
+
+    @staticmethod
+    def split(rows: int) -> int:
+        """Where :meth:`take` cuts ``rows`` rows in two for its two threads: about halfway, at a
+        multiple of :data:`ROWS`, so that both halves' blocks are the whole's."""
+        return min(rows, -(-rows // (2 * ROWS)) * ROWS)
 
     def take(self, left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
              accepted: np.ndarray) -> np.ndarray:
@@ -149,7 +180,7 @@ class Chooser:
         taken = accepted.astype(bool).copy()
         asked = disputed(network, candidate, accepted)
         features = chooser_features(left, network, uncertainty, candidate, accepted, where=asked)
-        half = len(features) // 2  # each row's products are the same whichever half holds it
+        half = self.split(len(features))  # each row's products are the same whichever half holds it
         taken[asked] = np.concatenate(side_by_side(lambda: self.probability(features[:half]),
                                                    lambda: self.probability(features[half:]))) > self.threshold
         return taken
