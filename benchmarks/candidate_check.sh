@@ -12,7 +12,8 @@
 #    2015; protocols cs and rgb) and on the real cross-spectral check (msir-outdoor: VIS/NIR pairs of a
 #    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v11)
 #    and the candidate in the same run, one JSON file per set in OUT_DIR;
-# 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships.
+# 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships. Its table and
+#    verdict also go to OUT_DIR/rule.md, under the command that made them.
 #
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
 # card (default: this development VM). CHOOSER_SCENES (comma-separated) fits the chooser on those
@@ -44,4 +45,14 @@ done
 .venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
   --jobs "${JOBS:-1}" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
 runs+=("$out/msir-outdoor.json")
-exec .venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" "${runs[@]}"
+{
+  echo "# \`$name\` ($checkpoint) against $shipped"
+  echo
+  echo "\`REFINEMENT=${REFINEMENT:-rank-sgbm} CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
+    "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=${JOBS:-1} benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
+    "($(date -u +%Y-%m-%d), $hardware). Its last step," \
+    "\`benchmarks/shipping_rule.py --shipped cade:$shipped --candidate cade:$name $out/*.json\`, printed:"
+  echo
+} > "$out/rule.md"
+.venv/bin/python benchmarks/shipping_rule.py --shipped "cade:$shipped" --candidate "cade:$name" "${runs[@]}" \
+  | tee -a "$out/rule.md"
