@@ -28,9 +28,10 @@ fi
 checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v11}
 data=../shared/data
 hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
+refinement=${REFINEMENT:-rank-sgbm} jobs=${JOBS:-1}
 mkdir -p "$out"
 .venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" \
-  --runtime-refinement "${REFINEMENT:-rank-sgbm}" --hardware "$hardware"
+  --runtime-refinement "$refinement" --hardware "$hardware"
 chooser_options=()
 [ -n "${CHOOSER_SCENES:-}" ] && chooser_options=(--scenes "$CHOOSER_SCENES")
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
@@ -39,17 +40,17 @@ chooser_options=()
 runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
-    --protocol cs,rgb --jobs "${JOBS:-1}" --json "$out/$dataset.json" > "$out/$dataset.md"
+    --protocol cs,rgb --jobs "$jobs" --json "$out/$dataset.json" > "$out/$dataset.md"
   runs+=("$out/$dataset.json")
 done
 .venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
-  --jobs "${JOBS:-1}" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
+  --jobs "$jobs" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
 runs+=("$out/msir-outdoor.json")
 {
   echo "# \`$name\` ($checkpoint) against $shipped"
   echo
-  echo "\`REFINEMENT=${REFINEMENT:-rank-sgbm} CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
-    "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=${JOBS:-1} benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
+  echo "\`REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
+    "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=$jobs benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
     "($(date -u +%Y-%m-%d), $hardware). Its last step," \
     "\`benchmarks/shipping_rule.py --shipped cade:$shipped --candidate cade:$name $out/*.json\`, printed:"
   echo

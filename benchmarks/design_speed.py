@@ -27,7 +27,7 @@ import numpy as np
 import onnxruntime as ort
 import torch
 
-from cade_cli.train.export import export_onnx
+from cade_cli.train.export import INPUT_NAMES, export_onnx
 from cade_cli.train.model import parameter_count
 from cade_cli.train.networks import network_of
 
@@ -78,7 +78,7 @@ def int8_twin(path: Path, width: int, height: int) -> Path:
     class RandomBands:
         def __init__(self):
             rng = np.random.default_rng(1)
-            self.feeds = iter([{name: rng.random((1, 1, height, width), dtype=np.float32) for name in ("left", "right")}
+            self.feeds = iter([{name: rng.random((1, 1, height, width), dtype=np.float32) for name in INPUT_NAMES}
                                for _ in range(2)])
 
         def get_next(self):
@@ -99,7 +99,7 @@ def seconds_per_run(paths: list[Path], width: int, height: int, threads: int, ru
     options.intra_op_num_threads = threads
     sessions = [ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"]) for path in paths]
     rng = np.random.default_rng(0)
-    feeds = {name: rng.random((1, 1, height, width), dtype=np.float32) for name in ("left", "right")}
+    feeds = {name: rng.random((1, 1, height, width), dtype=np.float32) for name in INPUT_NAMES}
     for session in sessions:
         for _ in range(2):
             session.run(None, feeds)
