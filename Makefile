@@ -60,12 +60,10 @@ train: $(RUNTIME)
 	$(BIN)/python -m cade_cli.train export $(RUN)/last.pt --onnx models/cade-v4.onnx
 
 # The GPU recipe's carried data (docs/gpu-recipe.md): the real training scenes and three
-# texture sets, copied where the device run can carry them (.gpu-data/, git-ignored).
-gpu-data:
-	rm -rf .gpu-data && mkdir -p .gpu-data/textures
-	cp -r ../shared/data/train-real .gpu-data/
-	cp -r ../shared/data/textures/CBSD68 ../shared/data/textures/Kodak24 ../shared/data/textures/skimage_cc0 .gpu-data/textures/
-	du -sh .gpu-data
+# texture sets, packed losslessly into .gpu-pack/data.tar (git-ignored) so that they and the
+# tracked tree fit one device call; benchmarks/gpu_data.py unpacks them there into .gpu-data/.
+gpu-data: $(RUNTIME)
+	$(BIN)/python benchmarks/gpu_data.py pack ../shared/data .gpu-pack/data.tar
 
 # A wheel built from this checkout, installed into a fresh venv outside the repo, runs the
 # default method on the bundled sample (the models travel inside the wheel). CI runs this.

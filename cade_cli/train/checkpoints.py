@@ -81,7 +81,7 @@ def restore(net: torch.nn.Module, optimizer, config: TrainConfig, checkpoint: Pa
                              "--init, or move it away to train from scratch")
         net.load_state_dict(state["model"])
         optimizer.load_state_dict(optimizer_moments(state["optimizer"], torch.float32))
-        torch.set_rng_state(state["torch_rng"])
+        torch.set_rng_state(state["torch_rng"].cpu())  # loaded onto config.device; the CPU generator takes a CPU tensor
         return state["step"], state["elapsed_s"], state.get("cpu_s", 0.0)
     if config.init:
         initial = torch.load(config.init, map_location=config.device, weights_only=False)["model"]

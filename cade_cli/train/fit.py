@@ -165,3 +165,35 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
     optimizer.step()
     epe = (out["disparity"] - batch["disparity"]).detach().abs()[mask].mean().item() if bool(mask.any()) else 0.0
     return loss.item(), epe
+
+
+def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[str, float, float]]:
+    """Score ``run``'s last checkpoint on the validation sets that ``fit`` would have scored with
+    ``data_dir`` (Middlebury 2014 Q and 2005, cross-spectral and same-band, whether or not the run
+    validated the same-band sets itself, and msir-outdoor; not the synthetic set, which every run scores) and append the rows to its
+    ``log.csv`` at the checkpoint's step, as ``fit`` writes them: for a run trained where those sets
+    were not, on a lent GPU (docs/gpu-recipe.md). A set already in the log at that step is left as it
+    is. Returns the rows added: (set, EPE px, bad-3 %)."""
+    fields = TrainConfig.__dataclass_fields__
+    saved = json.loads((run / "config.json").read_text())
+    config = TrainConfig(**{**{key: value for key, value in saved.items() if key in fields},
+                            "data_dir": str(data_dir), "device": "cpu", "threads": threads, "validate_rgb": True})
+    torch.set_num_threads(threads)
+    checkpoint = torch.load(run / "last.pt", map_location="cpu", weights_only=False)
+    net = network_of(asdict(config))
+    net.load_state_dict(checkpoint["model"])
+    net.eval()
+    log_path = run / "log.csv"
+    rows = list(csv.reader(log_path.open()))
+    step = checkpoint["step"]
+    logged = {row[5] for row in rows[1:] if int(row[0]) == step and row[6]}
+    added = []
+    for name, pairs in validation_sets(config, synthetic=False).items():
+        if name not in logged:
+            added.append((name, *evaluate(net, pairs, "cpu")))
+    with log_path.open("a", newline="") as log:
+        cpu = [f"{checkpoint.get('cpu_s', 0.0):.0f}"] if "cpu_s" in rows[0] else []
+        for name, epe, bad3 in added:
+            csv.writer(log).writerow([step, f"{checkpoint['elapsed_s']:.0f}", "", "", "", name, f"{epe:.3f}",
+                                      f"{bad3:.2f}", *cpu])
+    return added

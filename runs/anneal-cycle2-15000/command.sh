@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Accuracy IV shipping check of the campaign's second cycle, session 32 (models/README.md): an annealed copy of
+# runs/fast192-2d-cycle2's step-15,000 checkpoint, its end (copied to runs/anneal-cycle2-15000/init.pt), by the anneal
+# recipe (runs/anneal.sh: 500 steps, lr 5e-4 after a 50-step warm-up, seed 30) with --shadows 0.3 and the cycle's
+# 256x448 crops: the recipe of runs/anneal-cycle2-5000 and -10000, run this time on the lent H200 (40 s of training;
+# the first stage of runs/gpu-session32.sh). Checked against cade-v13 by:
+#   REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \
+#     benchmarks/candidate_check.sh runs/anneal-cycle2-15000/last.pt a15000 OUT cade-v13
+# Logs only: init.pt and last.pt are not in the tree. As run there: DATA=.gpu-data PYTHON=python3 and the device
+# flags below; here: DEVICE_FLAGS="--device cpu --threads 2 --workers 0 --validate-every 500 --data-dir ../shared/data".
+data=${DATA:-../shared/data}
+device=${DEVICE_FLAGS:-"--device cuda --amp --threads 2 --workers 14 --validate-every 100000"}
+exec ${PYTHON:-.venv/bin/python} -m cade_cli.train fit --out runs/anneal-cycle2-15000 --architecture cadenet2d \
+  --init runs/anneal-cycle2-15000/init.pt --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \
+  --textures "$data/textures" --real-dir "$data/train-real" --real-share 0.4 --network-input cade-floor \
+  --misaligned 0.3 --scene-range 0.25 --ground 0.3 --shadows 0.3 --steps 500 --batch 4 --height 256 --width 448 \
+  --lr 5e-4 --warmup 50 --seed 30 $device "$@"
