@@ -14,6 +14,7 @@ import pytest
 torch = pytest.importorskip("torch")
 pytestmark = pytest.mark.usefixtures("small_validation")  # conftest: a test-sized synthetic set
 
+from cade_cli.train.checkpoints import compact_checkpoint  # noqa: E402
 from cade_cli.train.config import TrainConfig  # noqa: E402
 from cade_cli.train.fit import train, validate_run  # noqa: E402
 
@@ -58,3 +59,9 @@ def test_validate_adds_the_rows_fit_writes_at_the_last_step_once(tmp_path: Path)
     assert after == by_fit  # the same figures, elapsed and CPU columns as fit's own rows
     assert validate_run(run, data_dir, threads=1) == []  # nothing twice
     assert len(rows(run)) == len(lines) - 1
+
+    # a finished run's checkpoint, weights only (as runs/README.md keeps one): the same rows again
+    compact_checkpoint(run / "last.pt", run / "last.pt", weights_only=True)
+    (run / "log.csv").write_text("".join(line for line in lines if ",middlebury14Q-" not in line))
+    assert len(validate_run(run, data_dir, threads=1)) == 2
+    assert {row["set"]: row for row in rows(run) if row["step"] == "3" and row["set"] != "train"} == by_fit

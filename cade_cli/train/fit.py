@@ -169,11 +169,11 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
 
 def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[str, float, float]]:
     """Score ``run``'s last checkpoint on the validation sets that ``fit`` would have scored with
-    ``data_dir`` (Middlebury 2014 Q and 2005, cross-spectral and same-band, whether or not the run
-    validated the same-band sets itself, and msir-outdoor; not the synthetic set, which every run scores) and append the rows to its
-    ``log.csv`` at the checkpoint's step, as ``fit`` writes them: for a run trained where those sets
-    were not, on a lent GPU (docs/gpu-recipe.md). A set already in the log at that step is left as it
-    is. Returns the rows added: (set, EPE px, bad-3 %)."""
+    ``data_dir`` (Middlebury 2014 Q and 2005, cross-spectral and same-band whether or not the run
+    validated the same-band sets itself, and msir-outdoor; not the synthetic set, which every run
+    scores) and append the rows to its ``log.csv`` at the checkpoint's step, as ``fit`` writes them:
+    for a run trained where those sets were not, on a lent GPU (docs/gpu-recipe.md). A set already in
+    the log at that step is left as it is. Returns the rows added: (set, EPE px, bad-3 %)."""
     fields = TrainConfig.__dataclass_fields__
     saved = json.loads((run / "config.json").read_text())
     config = TrainConfig(**{**{key: value for key, value in saved.items() if key in fields},
@@ -184,16 +184,17 @@ def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[s
     net.load_state_dict(checkpoint["model"])
     net.eval()
     log_path = run / "log.csv"
-    rows = list(csv.reader(log_path.open()))
+    header, *rows = csv.reader(log_path.read_text().splitlines())
     step = checkpoint["step"]
-    logged = {row[5] for row in rows[1:] if int(row[0]) == step and row[6]}
-    added = []
-    for name, pairs in validation_sets(config, synthetic=False).items():
-        if name not in logged:
-            added.append((name, *evaluate(net, pairs, "cpu")))
+    at_step = [row for row in rows if int(row[0]) == step]
+    logged = {row[5] for row in at_step if row[6]}
+    added = [(name, *evaluate(net, pairs, "cpu"))
+             for name, pairs in validation_sets(config, synthetic=False).items() if name not in logged]
+    # the step's clocks as fit's rows at that step have them, else the checkpoint's
+    elapsed = at_step[0][1] if at_step else f"{checkpoint.get('elapsed_s', 0.0):.0f}"
+    cpu = ([at_step[0][8] if at_step else f"{checkpoint.get('cpu_s', 0.0):.0f}"] if "cpu_s" in header else [])
     with log_path.open("a", newline="") as log:
-        cpu = [f"{checkpoint.get('cpu_s', 0.0):.0f}"] if "cpu_s" in rows[0] else []
+        writer = csv.writer(log)
         for name, epe, bad3 in added:
-            csv.writer(log).writerow([step, f"{checkpoint['elapsed_s']:.0f}", "", "", "", name, f"{epe:.3f}",
-                                      f"{bad3:.2f}", *cpu])
+            writer.writerow([step, elapsed, "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}", *cpu])
     return added
