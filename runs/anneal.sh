@@ -7,11 +7,13 @@
 #
 # DESIGN_FLAGS are those of the checkpoint's network (--levels, --slice-channels, --features2d, ...);
 # flags after them override the recipe's (the last occurrence wins). Run from the repository root.
+# On a lent GPU (docs/gpu-recipe.md): DATA=.gpu-data PYTHON=python3, and the device flags after the others.
 set -euo pipefail
 out=$1
 shift
-exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out "$out" --architecture cadenet2d --init "$out/init.pt" \
-  --textures ../shared/data/textures --data-dir ../shared/data \
-  --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
+data=${DATA:-../shared/data}
+exec nice -n 10 "${PYTHON:-.venv/bin/python}" -m cade_cli.train fit --out "$out" --architecture cadenet2d --init "$out/init.pt" \
+  --textures "$data/textures" --data-dir "$data" \
+  --real-dir "$data/train-real" --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \
   --ground 0.3 --steps 500 --batch 4 --height 192 --width 320 --lr 5e-4 --warmup 50 --seed 30 \
   --device cpu --threads 1 --workers 0 --validate-every 500 --validate-rgb "$@"

@@ -171,8 +171,8 @@ def fit(
 
 @app.command()
 def validate(
-    run: Annotated[Path, typer.Argument(exists=True, file_okay=False, help="A run's folder (its last.pt, "
-                                        "config.json and log.csv).")],
+    run: Annotated[Path, typer.Argument(exists=True, file_okay=False, help="A run's folder (its last.pt "
+                                        "and log.csv).")],
     data_dir: Annotated[Path, typer.Option(exists=True, file_okay=False, help="Where the validation sets are.")]
     = Path("../shared/data"),
     threads: Annotated[int, typer.Option(min=1)] = 2,
@@ -181,7 +181,7 @@ def validate(
     as `fit` writes them: for a run trained where the sets were not (a lent GPU's, docs/gpu-recipe.md)."""
     from cade_cli.train.fit import validate_run
 
-    missing = [name for name in ("last.pt", "config.json", "log.csv") if not (run / name).is_file()]
+    missing = [name for name in ("last.pt", "log.csv") if not (run / name).is_file()]
     if missing:
         raise typer.BadParameter(f"{run} is not a run's folder: no {', '.join(missing)}", param_hint="RUN")
     for name, epe, bad3 in validate_run(run, data_dir, threads=threads):

@@ -113,7 +113,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             net.eval()
             for name, pairs in validation.items():
                 epe, bad3 = evaluate(net, pairs, config.device)
-                writer.writerow([done, f"{elapsed:.0f}", "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}", *cpu_column])
+                writer.writerow(validation_row(done, f"{elapsed:.0f}", cpu_column, name, epe, bad3))
                 print(f"  validation {name}: EPE {epe:.2f} bad3 {bad3:.1f}%", flush=True)
             log.flush()
             net.train()
@@ -167,6 +167,12 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
     return loss.item(), epe
 
 
+def validation_row(step: int, elapsed: str, cpu: list[str], name: str, epe: float, bad3: float) -> list:
+    """A log row of one validation set's figures, in :func:`open_log`'s columns (``cpu``: the
+    ``cpu_s`` cell, or nothing for a log begun without that column)."""
+    return [step, elapsed, "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}", *cpu]
+
+
 def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[str, float, float]]:
     """Score ``run``'s last checkpoint on the validation sets that ``fit`` would have scored with
     ``data_dir`` (Middlebury 2014 Q and 2005, cross-spectral and same-band whether or not the run
@@ -174,15 +180,13 @@ def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[s
     scores) and append the rows to its ``log.csv`` at the checkpoint's step, as ``fit`` writes them:
     for a run trained where those sets were not, on a lent GPU (docs/gpu-recipe.md). A set already in
     the log at that step is left as it is. Returns the rows added: (set, EPE px, bad-3 %)."""
-    fields = TrainConfig.__dataclass_fields__
-    saved = json.loads((run / "config.json").read_text())
-    config = TrainConfig(**{**{key: value for key, value in saved.items() if key in fields},
-                            "data_dir": str(data_dir), "device": "cpu", "threads": threads, "validate_rgb": True})
+    from cade_cli.train.export import load_checkpoint
+
     torch.set_num_threads(threads)
-    checkpoint = torch.load(run / "last.pt", map_location="cpu", weights_only=False)
-    net = network_of(asdict(config))
-    net.load_state_dict(checkpoint["model"])
-    net.eval()
+    net, checkpoint = load_checkpoint(run / "last.pt")
+    fields = TrainConfig.__dataclass_fields__  # a checkpoint of an older TrainConfig may hold keys it has lost
+    config = TrainConfig(**{**{key: value for key, value in checkpoint["config"].items() if key in fields},
+                            "data_dir": str(data_dir), "device": "cpu", "threads": threads, "validate_rgb": True})
     log_path = run / "log.csv"
     header, *rows = csv.reader(log_path.read_text().splitlines())
     step = checkpoint["step"]
@@ -196,5 +200,5 @@ def validate_run(run: Path, data_dir: Path, *, threads: int = 2) -> list[tuple[s
     with log_path.open("a", newline="") as log:
         writer = csv.writer(log)
         for name, epe, bad3 in added:
-            writer.writerow([step, elapsed, "", "", "", name, f"{epe:.3f}", f"{bad3:.2f}", *cpu])
+            writer.writerow(validation_row(step, elapsed, cpu, name, epe, bad3))
     return added

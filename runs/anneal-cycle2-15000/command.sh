@@ -6,12 +6,9 @@
 # the first stage of runs/gpu-session32.sh). Checked against cade-v13 by:
 #   REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \
 #     benchmarks/candidate_check.sh runs/anneal-cycle2-15000/last.pt a15000 OUT cade-v13
-# Logs only: init.pt and last.pt are not in the tree. As run there: DATA=.gpu-data PYTHON=python3 and the device
-# flags below; here: DEVICE_FLAGS="--device cpu --threads 2 --workers 0 --validate-every 500 --data-dir ../shared/data".
-data=${DATA:-../shared/data}
+# Logs only: init.pt and last.pt are not in the tree. There: DATA=.gpu-data PYTHON=python3 with the default device
+# flags below (runs/gpu-session32.sh, which ran it, wrote the recipe's flags out without anneal.sh's --data-dir and
+# --validate-rgb, which find no sets there: the same training); here: DEVICE_FLAGS="--threads 2".
 device=${DEVICE_FLAGS:-"--device cuda --amp --threads 2 --workers 14 --validate-every 100000"}
-exec ${PYTHON:-.venv/bin/python} -m cade_cli.train fit --out runs/anneal-cycle2-15000 --architecture cadenet2d \
-  --init runs/anneal-cycle2-15000/init.pt --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \
-  --textures "$data/textures" --real-dir "$data/train-real" --real-share 0.4 --network-input cade-floor \
-  --misaligned 0.3 --scene-range 0.25 --ground 0.3 --shadows 0.3 --steps 500 --batch 4 --height 256 --width 448 \
-  --lr 5e-4 --warmup 50 --seed 30 $device "$@"
+exec runs/anneal.sh runs/anneal-cycle2-15000 --levels 192 --features2d 16 --width2d 32 --half-channels 8 \
+  --slice-channels 4 --shadows 0.3 --height 256 --width 448 $device "$@"
