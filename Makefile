@@ -49,7 +49,7 @@ bench-memory: $(RUNTIME)
 # Train the CADE network on generated data (torch only here, CPU build pinned) and export
 # it to models/: cade-v4 is cade-v3's committed checkpoint fine-tuned into the faster
 # design (zero padding, 1x1x1 first 3D kernel). The run resumes from $(RUN)/last.pt when
-# it exists. See models/README.md.
+# it exists. See docs/research/network-design.md.
 RUN ?= runs/cade-v4
 INIT ?= runs/cade-v3/last.pt
 STEPS ?= 6000

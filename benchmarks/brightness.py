@@ -12,7 +12,7 @@ road: models/README.md, sessions 23 and 24).
 
 Usage:
     .venv/bin/python benchmarks/brightness.py --data-dir ../shared/data --dataset kitti2012 \\
-        --models cade-v11,/tmp/c46000/c46000.json [--tasks R>B] [--edges 0,0.1,0.2,0.4] [--markdown FILE]
+        --models cade-v13,cade-v13-accurate [--tasks R>B] [--edges 0,0.1,0.2,0.4] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data-dir", type=Path, required=True)
     parser.add_argument("--dataset", default="kitti2012")
-    parser.add_argument("--models", default="cade-v11", help="Comma-separated model cards (names or paths).")
+    parser.add_argument("--models", default="cade-v13", help="Comma-separated model cards (names or paths).")
     parser.add_argument("--tasks", default=None, help="Comma-separated CS tasks (default: all six).")
     parser.add_argument("--edges", default="0,0.1,0.2,0.4",
                         help="Lower bounds of the brightness classes (share of the band's 99th percentile).")

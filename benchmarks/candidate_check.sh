@@ -10,10 +10,11 @@
 #    another refinement's matches (`train chooser --candidates`, e.g. rank-sgbm under a two-scale card);
 # 3. runs `cade benchmark` on the five sets (Middlebury 2005 and 2014, FlyingThings3D, KITTI 2012 and
 #    2015; protocols cs and rgb) and on the real cross-spectral check (msir-outdoor: VIS/NIR pairs of a
-#    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v11)
+#    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v13)
 #    and the candidate in the same run, one JSON file per set in OUT_DIR;
 # 4. applies the shipping rule (benchmarks/shipping_rule.py): exit 0 when the candidate ships. Its table and
-#    verdict also go to OUT_DIR/rule.md, under the command that made them.
+#    verdict, then both models' rows per region (non-occluded, depth edges, occluded; reported, not judged),
+#    also go to OUT_DIR/rule.md, under the command that made them.
 #
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
 # card (default: this development VM). CHOOSER_SCENES (comma-separated) fits the chooser on those
@@ -25,7 +26,7 @@ if [ $# -lt 3 ]; then
   echo "usage: benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]" >&2
   exit 2
 fi
-checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v11}
+checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v13}
 data=../shared/data
 hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
 refinement=${REFINEMENT:-rank-sgbm} jobs=${JOBS:-1}

@@ -8,7 +8,8 @@ preprocessing are not reported missing (compare a partial run against a full one
 
     .venv/bin/python benchmarks/compare_records.py docs/bench/middlebury05.json new05.json [--tolerance 0]
 
-Exit status 0 when nothing differs, 1 otherwise.
+A run made before a score was added (the region scores ``*_edge``, ``*_occ`` of 2026-11-28) compares
+equal on the scores both carry with ``--new-metrics``. Exit status 0 when nothing differs, 1 otherwise.
 """
 
 from __future__ import annotations

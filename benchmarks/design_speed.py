@@ -13,6 +13,7 @@ design's time over it. Pause any training run while timing: the seconds hold onl
 CPU.
 
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --fast --runs 15
+    OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --bakeoff --runs 5
 """
 
 from __future__ import annotations
@@ -67,6 +68,15 @@ FAST_DESIGNS = {
 }
 """``--fast``: the shipped fast design against narrower searches (its weights depend on the
 range, so a narrower twin is a network of its own) and smaller stages (Accuracy IV, item 3)."""
+BAKEOFF = {
+    "control: CadeNet2D, the fast design (cade-v13)": FAST,
+    "cadenet-convex (f24 w48)": {"architecture": "cadenet-convex", "levels": 192, "features2d": 24, "width2d": 48},
+    "cadenet-iterative (f24 w32)": {"architecture": "cadenet-iterative", "levels": 192, "features2d": 24,
+                                    "width2d": 32},
+    "cadenet-peak (f16 w32)": {"architecture": "cadenet-peak", "levels": 192, "features2d": 16, "width2d": 32},
+}
+"""``--bakeoff``: the Accuracy V design bake-off's designs (2026-11-28), untrained, at the flags of
+their ``runs/bakeoff-2026-11-28-<design>/command.sh``, against the control."""
 
 
 def int8_twin(path: Path, width: int, height: int) -> Path:
@@ -90,6 +100,19 @@ def int8_twin(path: Path, width: int, height: int) -> Path:
                     activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8, per_channel=True,
                     op_types_to_quantize=["Conv", "ConvTranspose"], calibrate_method=CalibrationMethod.MinMax)
     return target
+
+
+def gflops(net: torch.nn.Module, width: int, height: int) -> float:
+    """Billions of floating-point operations of one eval forward pass at ``width`` x ``height``, as
+    torch's FlopCounterMode counts them (convolutions and matrix products, 2 per multiply-add; not
+    the element-wise correlation products or the soft-argmin)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    band = torch.rand(1, 1, height, width)
+    counter = FlopCounterMode(display=False)
+    with torch.no_grad(), counter:
+        net(band, band)
+    return counter.get_total_flops() / 1e9
 
 
 def seconds_per_run(paths: list[Path], width: int, height: int, threads: int, runs: int) -> list[float]:
@@ -118,6 +141,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--runs", type=int, default=5, help="rounds: each design runs once a round")
     parser.add_argument("--fast", action="store_true", help="the fast design's table (FAST_DESIGNS) instead of DESIGNS")
+    parser.add_argument("--bakeoff", action="store_true",
+                        help="the design bake-off's table (BAKEOFF) instead of DESIGNS")
     parser.add_argument("--only", nargs="*", help="designs to time besides the first (names from the table; default all)")
     parser.add_argument("--int8", action="store_true", help="also time each design's static int8 twin")
     parser.add_argument("--keep", type=Path, help="write the exported designs here (designN.onnx, in table order), "
@@ -127,7 +152,8 @@ def main() -> None:
     torch.manual_seed(0)
     folder = args.keep or Path(tempfile.mkdtemp())
     folder.mkdir(parents=True, exist_ok=True)
-    designs = [(name, config) for index, (name, config) in enumerate((FAST_DESIGNS if args.fast else DESIGNS).items())
+    table = BAKEOFF if args.bakeoff else FAST_DESIGNS if args.fast else DESIGNS
+    designs = [(name, config) for index, (name, config) in enumerate(table.items())
                if not args.only or name in args.only or not index]
     nets, paths = [], []
     for index, (_, config) in enumerate(designs):
@@ -137,10 +163,12 @@ def main() -> None:
     seconds = seconds_per_run(paths, width, height, args.threads, args.runs)
     int8 = (seconds_per_run([int8_twin(path, width, height) for path in paths], width, height, args.threads, args.runs)
             if args.int8 else [])
-    print(f"| design | parameters | s / run at {width}x{height} | ratio |" + (" int8 s / run | ratio |" if args.int8 else "")
-          + "\n|---|---:|---:|---:|" + ("---:|---:|" if args.int8 else ""))
+    print(f"| design | parameters | GFLOPs | s / run at {width}x{height} | ratio |"
+          + (" int8 s / run | ratio |" if args.int8 else "") + "\n|---|---:|---:|---:|---:|"
+          + ("---:|---:|" if args.int8 else ""))
     for index, ((name, _), net) in enumerate(zip(designs, nets)):
-        row = f"| {name} | {parameter_count(net):,} | {seconds[index]:.3f} | {seconds[index] / seconds[0]:.2f} |"
+        row = (f"| {name} | {parameter_count(net):,} | {gflops(net, width, height):.1f} | {seconds[index]:.3f} "
+               f"| {seconds[index] / seconds[0]:.2f} |")
         if args.int8:
             row += f" {int8[index]:.3f} | {int8[index] / seconds[0]:.2f} |"
         print(row, flush=True)

@@ -1,6 +1,6 @@
 """Where an exported network's inference time goes: onnxruntime's own profile, by op type and node.
 
-    OMP_NUM_THREADS=2 .venv/bin/python benchmarks/network_profile.py models/cade-v4-96.onnx --size 720x496
+    OMP_NUM_THREADS=2 .venv/bin/python benchmarks/network_profile.py models/cade-v13.onnx --size 720x496
 
 The network runs on random bands of the given size (the time depends on the size, not the
 content), after two untimed runs; the shares are of the summed kernel time of the timed runs.

@@ -10,7 +10,7 @@ two threads, ``cade_cli.matching.side_by_side``, add both threads' times, so a r
 share of the pair). One untimed run per pair, then ``--repeat`` timed ones; mean seconds a pair.
 
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/pipeline_profile.py \\
-        --data-dir ../shared/data/middlebury2014/trainingQ --model cade-v11 --threads 2
+        --data-dir ../shared/data/middlebury2014/trainingQ --model cade-v13 --threads 2
 """
 
 from __future__ import annotations

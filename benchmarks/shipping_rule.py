@@ -11,7 +11,7 @@ A candidate ships when, in one run against the shipped model (every file holds b
    pseudo ground truth, docs/msir-outdoor.md) is in the runs and, by item 2, not worse. Without it the
    rule cannot be decided.
 
-    .venv/bin/python benchmarks/shipping_rule.py --shipped cade:cade-v11 --candidate cade:c60000 RUN.json...
+    .venv/bin/python benchmarks/shipping_rule.py --shipped cade:cade-v13 --candidate cade:NAME RUN.json...
 
 Tolerances. A set's tolerance is the largest relative change of its figure (mean EPE, mean BMP3) between
 two neighbouring checkpoints of one run: a change no larger than one checkpoint to the next already shows
@@ -21,7 +21,7 @@ is noise, not a loss. Measured by
         runs/campaign-2d/judged/*.json
 
 on runs/campaign-2d's raw checkpoints of steps 47,500, 53,500 and 60,000 (the end of its cosine; each
-with its own chooser, as benchmarks/candidate_check.sh builds them), models/README.md "Session 25",
+with its own chooser, as benchmarks/candidate_check.sh builds them), docs/research/shipping-rule.md (2026-11-27),
 EPE / BMP3 in %, rounded up to the next half per cent, at least 1 %:
 
     | set | EPE | BMP3 |          | set | EPE | BMP3 |
@@ -39,6 +39,11 @@ EPE / BMP3 in %, rounded up to the next half per cent, at least 1 %:
 
 A set missing from ``TOLERANCES`` is judged by ``DEFAULT_TOLERANCE``. Exit 0 when the candidate ships,
 1 when it does not.
+
+Regions. Under the verdict, a second table gives both models' mean EPE / BMP3 per set on each pixel set
+the records carry besides all pixels (``REGIONS``: non-occluded, depth edges, occluded; `cade benchmark`
+scores them wherever the dataset allows, cade_cli/evaluation/regions.py). They are reported, not judged:
+the verdict stays on all pixels.
 """
 
 from __future__ import annotations
@@ -68,6 +73,8 @@ TOLERANCES = {  # set (dataset or pooled name, protocol): (EPE, BMP3) tolerance 
 }
 DEFAULT_TOLERANCE = (0.03, 0.03)
 """A set whose spread was never measured keeps Accuracy III's 3 %."""
+REGIONS = {"nonocc": "non-occluded", "edge": "depth edges", "occ": "occluded"}
+"""Pixel sets reported beside the verdict (score key suffix -> label); not judged."""
 
 
 def read_records(paths: list[str]) -> list[dict]:
@@ -82,12 +89,37 @@ def read_records(paths: list[str]) -> list[dict]:
     return records
 
 
-def means(records: list[dict], method: str, keep=lambda record: True) -> tuple[float, float] | None:
-    """(mean EPE, mean BMP3) over ``method``'s records that ``keep`` accepts; None when there are none."""
-    scores = [r["scores"] for r in records if r["method"] == method and keep(r)]
+def means(records: list[dict], method: str, keep=lambda record: True, *, region: str = "all"
+          ) -> tuple[float, float] | None:
+    """(mean EPE, mean BMP3) on ``region``'s pixels over ``method``'s records that ``keep`` accepts
+    (for a region other than all pixels: those that score it, a number, not NaN); None when there are none."""
+    keys = f"epe_{region}", f"bad3_{region}"
+    scored = lambda r: region == "all" or all(  # noqa: E731
+        isinstance(r["scores"].get(key), (int, float)) and not math.isnan(r["scores"][key]) for key in keys)
+    scores = [r["scores"] for r in records if r["method"] == method and keep(r) and scored(r)]
     if not scores:
         return None
-    return statistics.mean(s["epe_all"] for s in scores), statistics.mean(s["bad3_all"] for s in scores)
+    return tuple(statistics.mean(s[key] for s in scores) for key in keys)
+
+
+def region_lines(records: list[dict], shipped: str, candidate: str) -> list[str]:
+    """The table of both models' mean EPE / BMP3 per set on each of :data:`REGIONS` (reported, not
+    judged); no lines when no record scores a region."""
+    lines = []
+    for key in sorted({(r["set"], r["protocol"]) for r in records}):
+        for region, label in REGIONS.items():
+            keep = lambda r, key=key: (r["set"], r["protocol"]) == key  # noqa: E731
+            old, new = (means(records, method, keep, region=region) for method in (shipped, candidate))
+            if old is None and new is None:
+                continue
+            cells = [f"{m[0]:.3f} / {m[1]:.2f}" if m is not None else "—" for m in (old, new)]
+            change = (f"{new[0] / old[0] - 1:+.1%} / {new[1] / old[1] - 1:+.1%}"
+                      if old is not None and new is not None and old[0] > 0 and old[1] > 0 else "—")
+            lines.append(f"| {' '.join(key)} | {label} | {cells[0]} | {cells[1]} | {change} |")
+    if not lines:
+        return []
+    return ["", "By region (reported, not judged; mean over the records that score the region):", "",
+            "| set | pixels | shipped EPE / BMP3 | candidate EPE / BMP3 | change |", "|---|---|---|---|---|", *lines]
 
 
 def set_means(records: list[dict], method: str) -> dict[tuple[str, str], tuple[float, float]]:
@@ -156,12 +188,13 @@ def main(argv: list[str] | None = None) -> int:
             print(f"    {key!r}: ({epe:.3f}, {bad:.3f}),")
         return 0
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--shipped", required=True, help="method row of the shipped model, e.g. cade:cade-v11")
+    parser.add_argument("--shipped", required=True, help="method row of the shipped model, e.g. cade:cade-v13")
     parser.add_argument("--candidate", required=True, help="method row of the candidate, e.g. cade:c60000")
     parser.add_argument("runs", nargs="+", help="cade benchmark --json files holding both rows")
     args = parser.parse_args(argv)
-    passes, lines = judge(read_records(args.runs), args.shipped, args.candidate)
-    print("\n".join(lines))
+    records = read_records(args.runs)
+    passes, lines = judge(records, args.shipped, args.candidate)
+    print("\n".join(lines + region_lines(records, args.shipped, args.candidate)))
     return 0 if passes else 1
 
 

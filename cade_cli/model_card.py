@@ -26,19 +26,19 @@ from pathlib import Path
 from cade_cli.errors import CadeError
 
 CARD_FORMAT = 2
-"""Version of the card layout; format 1 (sessions 1-11) named ``levels`` ``max_disp``."""
+"""Version of the card layout; format 1 (2026-11-22) named ``levels`` ``max_disp``."""
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v13"
 TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate"}
 """``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v13 since
-session 28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
-passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it in the same
-session cade-v12 (step 40,250; passed against cade-v11), cade-v11 in sessions 20-27, cade-v10 in
-session 19. accurate: cade-v13-accurate, the same network with a second pass on the pair enlarged
+2026-11-28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
+passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it the same day
+cade-v12 (step 40,250; passed against cade-v11), cade-v11 from 2026-11-25 to 2026-11-28, cade-v10 on
+2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate, the same network with a second pass on the pair enlarged
 1.5x fused in (``test_time_augmentation: ["upscaled-x1.5"]``), which passed the rule against
 cade-v12-accurate on every set (models/cade-v13-accurate.md); cade-v12-accurate before it, and
-cade-v11-accurate in sessions 26-27."""
+cade-v11-accurate from 2026-11-27 to 2026-11-28."""
 
 
 def model_dir() -> Path:
@@ -110,6 +110,12 @@ RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "rank-sgbm-two-sc
 TEST_TIME_AUGMENTATIONS = ("vertical-flip", "upscaled-x1.5", "upscaled-x2", "mirrored")
 
 
+RETIRED_MODELS = {name: "85fb266" for name in
+                  ("cade-v6", "cade-v11", "cade-v11-accurate", "cade-v12", "cade-v12-accurate")}
+"""Cards that left models/ (and the wheel), by name, and the commit that still has them with their
+ONNX files (``git show 85fb266:models/cade-v11.onnx``); their findings are in docs/research/."""
+
+
 def card_path(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> Path:
     """The card of ``model``: a path to a card file (``.../cade-v6.json``), the name of a
     card in ``folder`` (default :func:`model_dir`), or a tier of :data:`TIERS`."""
@@ -126,6 +132,11 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
         CadeError: the card is missing or malformed (the message names the file and the fix).
     """
     path = card_path(model, folder)
+    if not path.is_file() and folder is None and str(model) in RETIRED_MODELS:
+        commit = RETIRED_MODELS[str(model)]
+        raise CadeError(f"model {model} is retired and no longer shipped; commit {commit} has it: "
+                        f"`git show {commit}:models/{model}.json` and its .onnx files into a folder, then "
+                        f"give that card's path or set {MODEL_DIR_ENV} to the folder")
     if not path.is_file():
         raise CadeError(f"model card {path} not found; give the path of a model's .json card, or set "
                         f"{MODEL_DIR_ENV} to the folder holding {path.stem}.json")

@@ -46,9 +46,9 @@ import cv2
 import numpy as np
 
 from cade_cli.errors import CadeError
+from cade_cli.matching.base import range_margin
 from cade_cli.pair_features import band_features, dominant_line, feature_count, match_features, max_horizontal, subpixel_row_shift
 from cade_cli.rigs.self_check import fit_vertical_misalignment
-from cade_cli.scale.range import range_margin
 
 CHECK_WIDTH = 320
 """The pair is downscaled by powers of two while it stays at least this wide (px)."""
@@ -106,7 +106,7 @@ class PairCheck:
             tolerance, in [0, 1].
         searched: the inclusive range checked against, px.
         suggested: a range holding the trusted matches, px (their percentiles widened by
-            :func:`cade_cli.scale.range.range_margin`); None when inconclusive.
+            :func:`cade_cli.matching.base.range_margin`); None when inconclusive.
         factor: the downscale the pair was matched at (1, 2, 4, ...).
         problems: what is wrong, a subset of :data:`PROBLEMS` in that order; empty: nothing found.
     """

@@ -13,7 +13,7 @@ from cade_cli.matching import DisparityResult, get_matcher
 
 DEFAULT_METHOD = "cade"
 """The CADE network: the lowest EPE of the registered matchers on every set and protocol
-of the cross-spectral benchmark (docs/results.md)."""
+of the cross-spectral benchmark (docs/research/evaluation.md)."""
 
 DEFAULT_PREPROCESS = "auto"
 

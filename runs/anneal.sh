@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III's anneal of a checkpoint before its shipping check (models/README.md, sessions 20-22):
+# Accuracy III's anneal of a checkpoint before its shipping check (docs/research/campaigns.md, 2026-11-25 to 2026-11-27):
 # 500 steps at lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30, the campaign's data and crops
 # (192x320), one thread, from RUN_DIR/init.pt (a copy of the checkpoint) into RUN_DIR.
 #

@@ -11,8 +11,8 @@ import pytest
 
 from cade_cli.errors import CadeError
 from cade_cli.io.disparity import read_disparity
-from cade_cli.scale.batch import cap_jobs, pair_memory_bytes
-from cade_cli.scale.batch_pairs import Pair, PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns
+from cade_cli.batch.engines import cap_jobs, pair_memory_bytes
+from cade_cli.batch.pairs import Pair, PairOptions, is_finished, pairs_from_manifest, pairs_from_patterns
 from synthetic import render_pair
 from cli_runner import run_cade, write_png16
 
@@ -147,14 +147,14 @@ def test_manifest_with_per_pair_range(cameras, capsys):
 def test_a_record_tells_the_tiers_apart_though_they_share_a_network():
     """The accurate tier's card names the fast tier's ONNX file: the record's fingerprint must still
     differ (its second pass changes every output); a card's non-default refinement enters it too, and
-    a card with neither (cade-v11) keeps the fingerprint records had before those fields existed."""
+    a card with neither (cade-v4) keeps the fingerprint records had before those fields existed."""
     fast = PairOptions(method="cade", model="fast").fingerprint()
     accurate = PairOptions(method="cade", model="accurate").fingerprint()
     assert fast["model_sha256"] == accurate["model_sha256"]
     assert fast != accurate and "test_time_augmentation" not in fast
     assert accurate["test_time_augmentation"] == ["upscaled-x1.5"]
     assert fast["runtime_refinement"] == accurate["runtime_refinement"] == "rank-sgbm-two-scales"
-    legacy = PairOptions(method="cade", model="cade-v11").fingerprint()
+    legacy = PairOptions(method="cade", model="cade-v4").fingerprint()
     assert "model_sha256" in legacy and not {"test_time_augmentation", "runtime_refinement"} & set(legacy)
     assert "model_sha256" not in PairOptions(method="sgbm").fingerprint()
 
@@ -254,7 +254,7 @@ def test_killed_workers_are_replaced_and_no_output_is_lost(tmp_path, rng):
     import os
     import signal
 
-    from cade_cli.scale.batch import run_local
+    from cade_cli.batch.engines import run_local
 
     pairs = slow_pairs(tmp_path, rng, 6)
     results = run_local(pairs, jobs=2, threads=1)
@@ -271,7 +271,7 @@ def test_killed_workers_are_replaced_and_no_output_is_lost(tmp_path, rng):
 def test_stopping_a_local_run_stops_its_workers_and_keeps_finished_outputs(tmp_path, rng):
     import multiprocessing
 
-    from cade_cli.scale.batch import run_local
+    from cade_cli.batch.engines import run_local
 
     pairs = slow_pairs(tmp_path, rng, 8)
     results = run_local(pairs, jobs=2, threads=1)
@@ -342,7 +342,7 @@ def test_memory_limit_tiles_each_pair_as_disparity_does_and_a_new_limit_redoes_t
 
 
 def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp_path):
-    from cade_cli.scale.batch import job_memory_bytes
+    from cade_cli.batch.engines import job_memory_bytes
     from cade_cli.scale.memory import BASE_BYTES
 
     for name, shape in (("small", (16, 32)), ("large", (64, 128))):
@@ -361,7 +361,7 @@ def test_job_memory_is_planned_from_the_largest_pair_and_capped_by_the_limit(tmp
 
 
 def test_jobs_are_lowered_to_what_the_largest_pair_leaves_room_for(cameras, capsys, monkeypatch):
-    from cade_cli.scale import batch
+    from cade_cli.batch import engines as batch
 
     planned = pair_memory_bytes("census-sgm", 96, 48, 17)
     monkeypatch.setattr(batch, "available_memory_bytes", lambda: int(1.5 * planned / batch.MEMORY_HEADROOM))
@@ -463,7 +463,7 @@ def test_batch_with_a_rig_estimates_the_range_on_each_rectified_pair_and_tiles_i
             assert (root / "out" / f"{name}{suffix}").read_bytes() == (single / f"{name}{suffix}").read_bytes(), suffix
         assert np.nanmedian(read_disparity(single / f"{name}.pfm")) == pytest.approx(plane_disparity(depth), abs=1.0)
     # the --jobs plan: a rig's pair that does not fit the limit is tiled within it, so the limit is its plan
-    from cade_cli.scale.batch import job_memory_bytes
+    from cade_cli.batch.engines import job_memory_bytes
 
     options = PairOptions(method="sgbm", max_disp="auto", rig=str(root / "rig.json"),
                           memory_limit=BASE_BYTES + 40 * 2**20)
@@ -497,7 +497,7 @@ def test_rig_and_memory_options_are_checked_before_any_pair(cameras, capsys, mon
 
 def test_stale_temporaries_of_a_pair_go_nested_ones_included_and_no_other_file(tmp_path):
     from cade_cli.io.atomic import temporary_sibling
-    from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.batch.job import remove_stale_temporaries
 
     output = tmp_path / "0.pfm"
     outer = temporary_sibling(output)

@@ -128,7 +128,8 @@ def test_a_broken_capture_fails_alone_and_the_log_says_why(flight, tmp_path, cap
         "captures"]}
     assert "IMG_0003_1.tif: cannot read its pixels" in errors["IMG_0003"]
     assert "IMG_0004_3.tif: no Camera:RigRelatives in its metadata" in errors["IMG_0004"]
-    assert errors["IMG_0005"].startswith("no Red edge band file: the flight's other MicaSense RedEdge-M captures")
+    assert errors["IMG_0005"].startswith("no Red edge (rig index 4) band file: a MicaSense RedEdge-M has Blue, "
+                                         "Green, Red, NIR, Red edge")
     assert "warning: capture IMG_0004 failed" in err and err.strip().splitlines()[-1].startswith("cade: error: 3 of 5")
     assert not list(out.glob(".*tmp*"))  # nothing half-written
 
@@ -166,13 +167,16 @@ def test_the_real_captures_are_grouped_by_their_ids(shared_data):
     assert not notes
     found = {(str(capture.folder), capture.name): len(capture.paths) for capture in captures}
     assert found == {("rededge-m-bench", "IMG_0001"): 5, ("rededge-m-bench", "IMG_0007"): 5,
-                     ("rededge-m-field", "IMG_0008"): 5, ("sequoia-tabletop", "IMG_180413_080658_0000"): 4}
-    assert all(capture.problem is None and not capture.panel for capture in captures)  # 4 bands: another camera
+                     ("rededge-m-field", "IMG_0008"): 5, ("sequoia-tabletop", "IMG_180413_080658_0000"): 4,
+                     ("rededge-m-field", "IMG_0000"): 5, ("rededge-mx-dual", "IMG_0000"): 10}  # two panel shots
+    assert all(capture.problem is None for capture in captures)  # 4 bands: another camera; 10: the Dual
+    assert {(str(c.folder), c.name) for c in captures if c.panel} == {("rededge-m-field", "IMG_0000"),
+                                                                      ("rededge-mx-dual", "IMG_0000")}
 
 
 def test_jobs_are_lowered_to_what_the_largest_capture_leaves_room_for(flight, tmp_path, capsys, monkeypatch):
-    from cade_cli.scale import batch
-    from cade_cli.scale.batch_captures import (CAPTURE_MATCHING_BYTES, CAPTURE_PIXEL_BYTES, CaptureJob,
+    from cade_cli.batch import engines as batch
+    from cade_cli.batch.captures import (CAPTURE_MATCHING_BYTES, CAPTURE_PIXEL_BYTES, CaptureJob,
                                                capture_memory_bytes)
 
     small = CaptureJob("a", tuple(sorted(flight.glob("IMG_0001_*.tif"))), tmp_path / "a.tif")
@@ -192,13 +196,33 @@ def test_a_flight_without_a_terminal_logs_its_progress(flight, tmp_path, capsys,
     import re
     import time
 
-    import cade_cli.scale.batch
+    import cade_cli.batch.engines
     from cade_cli.cli import options
 
-    attempt = cade_cli.scale.batch._attempt
-    monkeypatch.setattr(cade_cli.scale.batch, "_attempt", lambda job: time.sleep(0.05) or attempt(job))
+    attempt = cade_cli.batch.engines._attempt
+    monkeypatch.setattr(cade_cli.batch.engines, "_attempt", lambda job: time.sleep(0.05) or attempt(job))
     monkeypatch.setattr(options, "PLAIN_PROGRESS_SECONDS", 0.02)
     code, _, err = run_cade(["batch", "--captures", flight, "-o", tmp_path / "cubes", "--plane-only"], capsys)
     assert code == 0, err
     lines = re.findall(r": (\d+) of 3 captures done, \d+ min \d\d s$", err, flags=re.M)
     assert lines and [int(done) for done in lines] == sorted(int(done) for done in lines)
+
+
+def test_a_capture_record_fingerprints_the_network_as_a_pair_record_does():
+    """One digest of a learned method's network for both kinds of batch record (the model card's
+    network files by sha256, its non-default runtime settings); none for a classical matcher or
+    without dense matching."""
+    from cade_cli.matching import method_fingerprint
+    from cade_cli.model_card import network_fingerprint
+    from cade_cli.batch.captures import CaptureOptions
+    from cade_cli.batch.pairs import PairOptions
+
+    for model in ("fast", "accurate"):
+        digest = network_fingerprint(model)
+        assert digest["model_sha256"] and method_fingerprint("cade", model=model) == digest
+        capture = CaptureOptions(method="cade", model=model).fingerprint()
+        pair = PairOptions(method="cade", model=model).fingerprint()
+        assert {key: capture[key] for key in digest} == {key: pair[key] for key in digest} == digest
+    assert method_fingerprint("sgbm") == {}
+    assert "model_sha256" not in CaptureOptions(method="sgbm").fingerprint()
+    assert "model_sha256" not in CaptureOptions(method="cade", plane_only=True).fingerprint()

@@ -292,6 +292,29 @@ def test_the_shipping_rule_pools_kitti_and_needs_the_real_check(tmp_path, capsys
     assert "sets worse beyond their tolerance: msir-outdoor native" in capsys.readouterr().out
 
 
+def test_the_shipping_rule_prints_both_models_region_rows_and_judges_on_all_pixels(tmp_path, capsys):
+    rule = _shipping_rule()
+    rule.TOLERANCES.clear()
+    args = ["--shipped", "old", "--candidate", "new"]
+    scores = {"middlebury14": {"cs": {"old": (2.0, 20.0), "new": (1.9, 19.0)}},
+              "msir-outdoor": {"native": {"old": (1.0, 10.0), "new": (1.0, 10.0)}}}
+    paths = _rule_runs(tmp_path, scores)
+    data = json.loads(Path(paths[0]).read_text())
+    for record in data["records"]:  # regions: the candidate far worse at edges, the old model has no occ score
+        new = record["method"] == "new"
+        record["scores"].update({"epe_nonocc": 1.0, "bad3_nonocc": 10.0, "epe_edge": 8.0 if new else 4.0,
+                                 "bad3_edge": 40.0 if new else 20.0})
+        record["scores"].update({"epe_occ": 3.0, "bad3_occ": 30.0} if new else {"epe_occ": float("nan"),
+                                                                                 "bad3_occ": float("nan")})
+    Path(paths[0]).write_text(json.dumps(data))
+    assert rule.main(args + paths) == 0  # the verdict stays on all pixels
+    out = capsys.readouterr().out
+    assert "| middlebury14 cs | non-occluded | 1.000 / 10.00 | 1.000 / 10.00 | +0.0% / +0.0% |" in out
+    assert "| middlebury14 cs | depth edges | 4.000 / 20.00 | 8.000 / 40.00 | +100.0% / +100.0% |" in out
+    assert "| middlebury14 cs | occluded | — | 3.000 / 30.00 | — |" in out
+    assert "msir-outdoor native | non-occluded" not in out  # its records score no region
+
+
 def test_shipping_tolerances_are_the_largest_change_between_neighbouring_checkpoints(tmp_path):
     rule = _shipping_rule()
     scores = {"kitti2012": {"cs": {"a": (1.0, 10.0), "b": (1.1, 9.0), "c": (1.1, 9.9)}}}
@@ -419,7 +442,7 @@ def test_brightness_classes_put_each_gross_error_where_the_light_is():
     scene = Scene("shifted", np.ascontiguousarray(left), np.ascontiguousarray(right), gt, None, 32, "test")
     protocol = get_protocol("cs").select(["R>B"])
     edges = (0.0, 0.1, 0.4)
-    counts = brightness.count_scene(scene, models=("cade-v11",), protocol=protocol, edges=edges)[0]
+    counts = brightness.count_scene(scene, models=("cade-v13",), protocol=protocol, edges=edges)[0]
     scored = counts[:, 1]
     assert scored.sum() == np.isfinite(gt).sum()
     half = height * (width // 2)
@@ -427,7 +450,7 @@ def test_brightness_classes_put_each_gross_error_where_the_light_is():
     assert abs(scored[2] - half) < height * 12  # the bright half
     assert counts[2, 0] < 0.05 * scored[2]
     wrong = dataclasses.replace(scene, disparity=gt + 10)
-    off = brightness.count_scene(wrong, models=("cade-v11",), protocol=protocol, edges=edges)[0]
+    off = brightness.count_scene(wrong, models=("cade-v13",), protocol=protocol, edges=edges)[0]
     assert np.all(off[:, 0] >= 0.9 * off[:, 1])
 
 

@@ -118,11 +118,9 @@ def test_the_command_writes_the_cube_and_its_pictures(tmp_path, rng, capsys):
     assert code == 0, err
     assert "5 bands onto Green" in err and "s per capture" in err
     with tifffile.TiffFile(output) as tiff:
-        assert len(tiff.pages) == 5
-        assert [page.tags[285].value for page in tiff.pages] == ["Blue", "Green", "Red", "NIR", "Red edge"]
+        assert len(tiff.pages) == 1 and tiff.pages[0].samplesperpixel == 5  # one image of 5 samples (GDAL bands)
         description = json.loads(tiff.pages[0].description)
         assert [b["wavelength_nm"] for b in description["bands"]] == [475, 560, 668, 840, 717]
-        assert b"Camera:BandName>Green<" in tiff.pages[0].tags[700].value  # the reference's XMP
         cube = tiff.asarray()
     assert cube.dtype == np.float32 and cube.shape == (5, 240, 320)
     raw_green = tifffile.imread(scene.paths[1])

@@ -41,15 +41,18 @@ def micasense(shared_data) -> Path:
 
 def test_the_captures_and_their_bands_are_found(drone_alignment, micasense):
     captures = drone_alignment.find_captures(micasense)
-    assert sorted(captures) == ["rededge-m-bench/IMG_0001", "rededge-m-bench/IMG_0007", "rededge-m-field/IMG_0008",
-                                "sequoia-tabletop/IMG_180413_080658_0000"]
+    first_delivery = {"rededge-m-bench/IMG_0001", "rededge-m-bench/IMG_0007", "rededge-m-field/IMG_0008",
+                      "sequoia-tabletop/IMG_180413_080658_0000"}  # and the panel shots that came later
+    assert first_delivery <= set(captures)
+    rededge = ["Blue", "Green", "Red", "NIR", "Red edge"]  # RigCameraIndex order (README)
     for name, capture in captures.items():
-        expected = ["Green", "Red", "Red edge", "NIR"] if name.startswith("sequoia") else \
-            ["Blue", "Green", "Red", "NIR", "Red edge"]  # RigCameraIndex order (README)
+        expected = (["Green", "Red", "Red edge", "NIR"] if name.startswith("sequoia") else
+                    rededge + ["Blue-444", "Green-531", "Red-650", "Red edge-705", "Red edge-740"]
+                    if name.startswith("rededge-mx-dual") else rededge)
         assert capture.names() == expected and capture.reference_band.name == "Green"
         assert [band.rig_index for band in capture.bands] == list(range(len(expected)))
         focal = [band.lens.focal for band in capture.bands]
-        low, high = (1061, 1062) if name.startswith("sequoia") else (1440, 1457)
+        low, high = (1061, 1062) if name.startswith("sequoia") else (1440, 1460)
         assert all(low < f < high for f in focal)
 
 

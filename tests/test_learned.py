@@ -39,6 +39,15 @@ def test_shipped_models_match_their_cards(name):
         network.onnx_session(variant.path, variant.sha256)  # verifies the sha256
 
 
+def test_a_retired_model_is_refused_by_name_with_the_commit_that_has_it(monkeypatch):
+    monkeypatch.delenv(model_card.MODEL_DIR_ENV, raising=False)
+    for name in model_card.RETIRED_MODELS:
+        assert not (model_card.model_dir() / f"{name}.json").exists()
+        with pytest.raises(CadeError, match=f"{name} is retired.*commit 85fb266") as refused:
+            read_card(name)
+        assert "\n" not in str(refused.value)
+
+
 def test_a_session_follows_the_thread_count_set_after_the_first_was_built(monkeypatch):
     """`use_threads` sets $OMP_NUM_THREADS for pools created later: a model's session is kept per
     thread count, so a run after the change gets a session with the new count (the count moves
@@ -57,8 +66,8 @@ def test_a_session_follows_the_thread_count_set_after_the_first_was_built(monkey
 
 def test_sessions_do_not_busy_wait_after_a_run():
     """Each run hands the cores to OpenCV's refinement; onnxruntime threads still spinning after
-    it would hold them (models/README.md, session 9). Spinning threads burn about 50 ms of this
-    process's CPU in the half second after a run; idle ones none (session 27)."""
+    it would hold them (docs/research/speed.md, 2026-11-22). Spinning threads burn about 50 ms of this
+    process's CPU in the half second after a run; idle ones none (measured 2026-11-28)."""
     variant = read_card().variants[0]
     session = network.onnx_session(variant.path, variant.sha256)
     feeds = {item.name: np.zeros((1, 1, 64, 96), np.float32) for item in session.get_inputs()}
@@ -71,7 +80,7 @@ def test_sessions_do_not_busy_wait_after_a_run():
 def test_the_matcher_makes_no_blas_call(rng, monkeypatch):
     """A BLAS call leaves OpenBLAS's threads busy-waiting on the two cores the network and
     OpenCV need next; one np.dot in the inversion check cost about a fifth of the matcher's
-    time (models/README.md, session 9)."""
+    time (docs/research/speed.md, 2026-11-22)."""
     def refuse(*args, **kwargs):
         raise AssertionError("BLAS routine called by the cade matcher")
 
@@ -192,7 +201,7 @@ def test_occluded_pixels_are_invalid_and_filled_from_the_background(rng):
     result = CADE(pair.left, pair.right, max_disp=32)
     assert pair.occluded.sum() > 100
     # background side (6 px; the foreground side would be 15 px off): cade-v4 0.51 px, cade-v11 0.80
-    # on this pair (cade-v10 0.88; cade-v9, the shipped model for an hour of session 19: 1.23)
+    # on this pair (cade-v10 0.88; cade-v9, the shipped model for an hour on 2026-11-25: 1.23)
     assert np.median(np.abs(dense(result) - pair.disparity)[pair.occluded]) < 2.0
     assert result.valid[pair.reliable].mean() > 0.95
     # invalid: the left border (matches leave the right view) and around the occlusion
@@ -210,8 +219,9 @@ def test_negative_range_by_pre_shifting(rng):
 
 
 def test_widest_variant_runs_at_full_resolution(rng, monkeypatch):
-    """A card with several range variants (cade-v4's: 96 ... 256 levels of the same 3D weights)
-    runs the widest at full size for a span it covers; a CadeNet2D card (cade-v11) has one."""
+    """A card with several range variants (cade-v4's: 96 and 128 levels of the same 3D weights; the
+    test needs a 3D CadeNet, whose weights run at any range) runs the widest at full size for a span
+    it covers; a CadeNet2D card (cade-v13) has one."""
     card = read_card("cade-v4")
     narrow, wide = card.variants[-2].levels, card.variants[-1].levels
     pair = render_pair(rng, (96, 2 * narrow + 96), background=(narrow - 3.4, 0.0), foreground=(narrow + 14.0, 0.0))

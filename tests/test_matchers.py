@@ -25,7 +25,7 @@ MATCHER_PREPROCESS = [(name, preprocess) for name, matcher in MATCHERS.items() f
 
 
 # The network's sub-pixel precision is coarser than a parabola fit on an SGM cost
-# (models/README.md), so it is held to 1 px mean error here, the others to 0.5 px.
+# (docs/research/network-design.md), so it is held to 1 px mean error here, the others to 0.5 px.
 MEAN_ERROR_BOUND = {"cade": 1.0, "cade-network": 1.0}
 
 

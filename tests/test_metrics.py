@@ -108,16 +108,37 @@ def test_densify_with_nothing_valid_gives_zeros():
     assert invalid_percentage(np.full((2, 3), NAN), np.zeros((2, 3), bool)) == 100.0
 
 
-def test_score_keys_depend_on_nonocc_and_confidence():
+def test_score_keys_depend_on_the_regions_and_confidence():
     plain = score(PRED, GT)
-    assert list(plain) == [name for name in METRIC_NAMES if "nonocc" not in name and "auc" not in name]
     assert list(plain) == ["epe_all", "bad1_all", "bad2_all", "bad3_all", "bad5_all", "d1_all", "invalid"]
     with_nonocc = score(PRED, GT, nonocc=ALL)
-    assert list(with_nonocc) == [name for name in METRIC_NAMES if "auc" not in name]
-    assert list(score(PRED, GT, nonocc=ALL, confidence=np.ones(PRED.shape))) == list(METRIC_NAMES)
-    # the confidence columns come last, so the earlier columns keep their places
+    assert list(with_nonocc) == [name for name in METRIC_NAMES
+                                 if name.endswith(("_all", "_nonocc", "invalid")) and "auc" not in name]
+    only_edge = score(PRED, GT, edge=ALL)
+    assert [name for name in only_edge if name not in plain] == [
+        "epe_edge", "bad1_edge", "bad2_edge", "bad3_edge", "bad5_edge", "d1_edge"]
+    every = score(PRED, GT, nonocc=ALL, edge=ALL, occ=ALL, confidence=np.ones(PRED.shape))
+    assert list(every) == list(METRIC_NAMES)
+    # the all-pixel and non-occluded columns keep their places; the confidence columns come last
+    assert METRIC_NAMES[:12] == tuple(f"{m}_{r}" for r in ("all", "nonocc")
+                                      for m in ("epe", "bad1", "bad2", "bad3", "bad5", "d1"))
     assert METRIC_NAMES[-2:] == ("auc_conf_all", "auc_oracle_all")
-    assert len(METRIC_NAMES) == 2 * (1 + len(BAD_THRESHOLDS) + 1) + 1 + 2
+    assert len(METRIC_NAMES) == 4 * (1 + len(BAD_THRESHOLDS) + 1) + 1 + 2
+
+
+def test_each_region_scores_only_its_own_pixels():
+    # errors [[0, 2, 0.5], [-, 4, 0]]: edge = the two middle pixels, occ = the error-4 pixel alone
+    edge = np.zeros((2, 3), bool)
+    edge[:, 1] = True
+    occ = np.zeros((2, 3), bool)
+    occ[1, 1] = True
+    result = score(PRED, GT, nonocc=~occ, edge=edge & ~occ, occ=occ)
+    assert result["epe_edge"] == pytest.approx(2.0) and result["bad1_edge"] == 100.0
+    assert result["epe_occ"] == pytest.approx(4.0) and result["bad3_occ"] == 100.0
+    assert result["epe_nonocc"] == pytest.approx(0.625) and result["bad3_nonocc"] == 0.0
+    assert result["epe_all"] == pytest.approx(1.3)  # the regions leave the all-pixel figures alone
+    assert score(PRED, GT, occ=np.zeros((2, 3), bool))["epe_occ"] != score(PRED, GT, occ=np.zeros((2, 3), bool))[
+        "epe_occ"]  # an empty region scores NaN
 
 
 def test_d1_needs_both_3_px_and_5_percent_by_hand():

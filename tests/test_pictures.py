@@ -15,7 +15,7 @@ from cade_cli.io.match_outputs import colorize_disparity, disparity_picture
 from cade_cli.io.pictures import ColourBar, format_value, parse_value_range, robust_range, with_legend
 from cade_cli.io.registered import registration_picture
 from cade_cli.registration import Registration
-from cade_cli.scale.batch_pairs import PairOptions
+from cade_cli.batch.pairs import PairOptions
 from cli_runner import run_cade, write_png16
 from synthetic import render_pair
 

@@ -69,15 +69,15 @@ def test_benchmark_logs_its_tasks_as_it_goes(folder_dataset, tmp_path, every_20_
 
 def test_batch_logs_its_pairs_and_says_a_repeated_note_once_with_its_count(tmp_path, rng, every_20_ms, capsys,
                                                                            monkeypatch):
-    import cade_cli.scale.batch
+    import cade_cli.batch.engines
 
-    attempt = cade_cli.scale.batch._attempt
+    attempt = cade_cli.batch.engines._attempt
 
     def slow_attempt(pair):  # each pair takes 50 ms more (one job: pairs run in this process)
         time.sleep(0.05)
         return attempt(pair)
 
-    monkeypatch.setattr(cade_cli.scale.batch, "_attempt", slow_attempt)
+    monkeypatch.setattr(cade_cli.batch.engines, "_attempt", slow_attempt)
     for side in ("rgb", "nir"):
         (tmp_path / side).mkdir()
     import cv2

@@ -70,6 +70,25 @@ def test_learning_rate_warms_up_then_decays():
     assert rates[-1] == pytest.approx(5e-5, rel=0.05) and all(a >= b for a, b in zip(rates[100:], rates[101:]))
 
 
+def test_a_cpu_budget_ends_the_cosine_when_it_is_spent():
+    config = TrainConfig(out="unused", textures=[], steps=100_000, warmup=100, lr=1e-3, cpu_budget_s=3600)
+    assert learning_rate(config, 50, cpu_s=3000) == learning_rate(TrainConfig(
+        out="unused", textures=[], steps=100_000, warmup=100, lr=1e-3), 50)  # the warm-up is by steps
+    by_cpu = [learning_rate(config, 500, cpu_s=cpu) for cpu in (0, 900, 1800, 2700, 3600, 5000)]
+    assert by_cpu[0] == pytest.approx(1e-3, rel=1e-3) and by_cpu[2] == pytest.approx(0.525e-3, rel=1e-3)
+    assert by_cpu[-2] == by_cpu[-1] == pytest.approx(5e-5) and all(a > b for a, b in zip(by_cpu[:4], by_cpu[1:5]))
+    assert learning_rate(config, 99_000, cpu_s=0) < 1e-4  # the steps still end it where they come first
+
+
+def test_a_cpu_budget_stops_the_run_checkpointed_and_a_resume_after_it_takes_one_step(tmp_path: Path):
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=10_000, batch=1, height=32, width=64,
+                         levels=16, workers=0, validate_every=10_000, checkpoint_every=10_000, cpu_budget_s=1.0)
+    state = torch.load(train(config), weights_only=False)
+    assert 1 <= state["step"] < 10_000 and state["cpu_s"] > 1.0
+    again = torch.load(train(config), weights_only=False)  # the budget is the run's, over resumes
+    assert again["step"] == state["step"] + 1
+
+
 def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=1, height=32, width=64,
                          levels=16, workers=0, validate_every=2, checkpoint_every=2, stop_after=3)

@@ -12,7 +12,8 @@ from cade_cli import spectral
 from cade_cli.errors import CadeError
 from cade_cli.train import pairs
 from cade_cli.train.pairs import cade_pair
-from cade_cli.train.scenes import NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, _textured, render_scene
+from cade_cli.train.scenes import (NO_MISALIGNMENT, NO_PHOTOMETRIC, Misalignment, Photometric, render_scene,
+                                   textured_surface)
 from cade_cli.train.shapes import random_shape
 from cade_cli.train.textures import TexturePool, procedural_texture
 from synthetic import write_real_scene
@@ -146,7 +147,7 @@ def test_some_surfaces_are_dark_or_nearly_textureless():
     are dark (brightest value <= 0.1) and about a tenth have little contrast (each channel
     spans <= 0.15)."""
     rng = np.random.default_rng(0)
-    textures = [_textured(rng, TexturePool(), 64, 64)[0] for _ in range(300)]
+    textures = [textured_surface(rng, TexturePool(), 64, 64)[0] for _ in range(300)]
     dark = np.mean([texture.max() <= 0.1 for texture in textures])
     flat = np.mean([texture.max() > 0.1 and np.ptp(texture, axis=(0, 1)).max() <= 0.15 for texture in textures])
     assert 0.05 < dark < 0.15 and 0.05 < flat < 0.2

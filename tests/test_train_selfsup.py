@@ -125,6 +125,9 @@ def test_the_real_captures_are_found_without_the_scored_set():
     folder = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "micasense"
     if not folder.is_dir():
         pytest.skip("../shared/data/micasense is absent")
-    groups = capture_groups(folder)
-    assert len(groups) == 4 and all(len(paths) in (4, 5) for paths in groups.values())
+    groups = {str(Path(key).relative_to(folder)): paths for key, paths in capture_groups(folder).items()}
+    # the four captures of the first delivery, each with all its band files, among whatever else is there
+    assert {"rededge-m-bench/IMG_0001": 5, "rededge-m-bench/IMG_0007": 5, "rededge-m-field/IMG_0008": 5,
+            "sequoia-tabletop/IMG_180413_080658_0000": 4}.items() <= {key: len(paths) for key, paths in groups.items()}.items()
+    assert all(len({Path(path).name for path in paths}) == len(paths) for paths in groups.values())
     assert not any("msir" in key for key in groups)

@@ -86,9 +86,9 @@ def test_each_runtime_refinement_configures_the_refinement(refinement, field, va
 
 
 def test_a_card_asks_for_the_two_scale_search(tmp_path: Path, monkeypatch):
-    shipped = card_path("cade-v11")  # a card with the default refinement
+    shipped = card_path("cade-v4")  # a card with the default refinement
     assert read_card(shipped).refinement == "rank-sgbm"
-    path = card_copy(tmp_path, "two-scales", source="cade-v11", runtime_refinement="rank-sgbm-two-scales")
+    path = card_copy(tmp_path, "two-scales", source="cade-v4", runtime_refinement="rank-sgbm-two-scales")
     assert read_card(path).refinement == "rank-sgbm-two-scales"
     halves = []
     original = RankSgbmRefinement.half_size_candidate

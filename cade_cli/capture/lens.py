@@ -22,6 +22,8 @@ class BrownLens:
         focal: focal length, px (square pixels).
         centre: (cx, cy) principal point, px of the raw image.
         k1, k2, k3: radial coefficients; p1, p2: tangential (OpenCV's ``p1``, ``p2``).
+        focal_y: the vertical focal length, px, where it differs from ``focal`` (DJI's
+            ``DewarpData`` gives fx and fy); None: square pixels.
     """
 
     focal: float
@@ -31,13 +33,18 @@ class BrownLens:
     k3: float = 0.0
     p1: float = 0.0
     p2: float = 0.0
+    focal_y: float | None = None
 
     kind = "perspective"
 
     @property
+    def fy(self) -> float:
+        return self.focal if self.focal_y is None else self.focal_y
+
+    @property
     def K(self) -> np.ndarray:
         """(3, 3) float64 intrinsic matrix."""
-        return np.array([[self.focal, 0, self.centre[0]], [0, self.focal, self.centre[1]], [0, 0, 1]], np.float64)
+        return np.array([[self.focal, 0, self.centre[0]], [0, self.fy, self.centre[1]], [0, 0, 1]], np.float64)
 
     @property
     def dist(self) -> np.ndarray:
@@ -50,7 +57,7 @@ class BrownLens:
         radial = 1 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
         xd = x * radial + 2 * self.p1 * x * y + self.p2 * (r2 + 2 * x * x)
         yd = y * radial + self.p1 * (r2 + 2 * y * y) + 2 * self.p2 * x * y
-        return self.focal * xd + self.centre[0], self.focal * yd + self.centre[1]
+        return self.focal * xd + self.centre[0], self.fy * yd + self.centre[1]
 
     def rays(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Normalised coordinates (x, y) of raw pixels (u, v) (iterative inverse, to 1e-9)."""

@@ -1,30 +1,55 @@
 """What a drone multispectral band file says about itself: its XMP packet (TIFF tag 700, the
 Pix4D ``Camera:`` namespace, MicaSense's and Parrot's own) and EXIF, read with tifffile into a
 :class:`BandFile`: band name and centre wavelength, rig index, capture id, lens model and
-rotation, black level. A missing tag is a :class:`~cade_cli.errors.CadeError` naming the field
-and the option that supplies it (docs/drone.md).
+rotation, black level; DJI's ``drone-dji`` tags through :mod:`cade_cli.capture.dji`. A missing
+tag is a :class:`~cade_cli.errors.CadeError` naming the field and the option that supplies it
+(docs/drone.md). Files cade wrote (TIFF ``Software`` tag starting ``cade``) can be refused
+(:class:`CadeOutputFile`), so that a flight never takes its own outputs as inputs.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import tifffile
 
+from cade_cli.capture.dji import dji_band, dji_lens, dji_radiometry, dji_rotation, is_dji
 from cade_cli.capture.lens import BrownLens, FisheyeLens, Lens, rig_relatives_rotation
 from cade_cli.errors import CadeError
 
 NAMESPACES = {"http://pix4d.com/camera/": "Camera", "http://micasense.com/MicaSense/": "MicaSense",
-              "http://micasense.com/DLS/": "DLS", "http://www.parrot.com/": "Parrot"}
+              "http://micasense.com/DLS/": "DLS", "http://www.parrot.com/": "Parrot",
+              "http://www.dji.com/drone-dji/": "drone-dji"}
 """Namespace URI prefixes and the prefix names tags are read under (Parrot and MicaSense
 differ by a trailing slash and version: only the start is compared)."""
 
 RDF = "{http://www.w3.org/1999/02/22-rdf-syntax-ns#}"
 RIG_OPTION = "--rig rig.json"
 """The option that supplies a camera's geometry when its files do not."""
+CADE_SOFTWARE = "cade"
+"""The start of the TIFF ``Software`` tag (305) of every file cade writes (the cube writer's
+``cade register-capture``): how a flight tells its own outputs from a camera's files."""
+
+
+class CadeOutputFile(CadeError):
+    """A TIFF cade wrote, refused where only a camera's own files are wanted."""
+
+
+@contextlib.contextmanager
+def quiet_tifffile():
+    """tifffile's own log messages (e.g. ``invalid offset to first page`` for a file cut short)
+    held back while a file is read: the reader's one line says what is wrong instead."""
+    logger = logging.getLogger("tifffile")
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
 
 
 def _prefix(uri: str) -> str:
@@ -95,6 +120,13 @@ class BandFile:
         calibration_picture: ``Camera:CalibrationPicture`` (Pix4D's tag, written by the
             Sequoia): 0 an ordinary shot, 1 or 2 a radiometric calibration target (a panel);
             None when absent (MicaSense RedEdge files do not carry it).
+        rotation_reference: ``Camera:RigRelativesReferenceRigCameraIndex``, the rig index
+            ``RigRelatives`` are relative to (the RedEdge-MX Dual's second camera: 6,
+            Green-531); None when absent (the rig reference).
+        serial: the camera body's serial (EXIF BodySerialNumber), None when absent.
+        software: the TIFF Software tag ("" when absent).
+        radiometry: DJI's radiometric tags (:func:`cade_cli.capture.dji.dji_radiometry`), {}
+            for other cameras.
     """
 
     path: Path
@@ -109,6 +141,10 @@ class BandFile:
     rotation: np.ndarray | None
     black_level: float
     calibration_picture: int | None = None
+    rotation_reference: int | None = None
+    serial: str | None = None
+    software: str = ""
+    radiometry: dict = field(default_factory=dict, compare=False)
 
 
 class _Fields:
@@ -177,26 +213,67 @@ def _rotation(fields: _Fields, rig_index: int) -> np.ndarray | None:
     return rig_relatives_rotation(angles).T  # the vendor maps band rays to reference rays with R
 
 
-def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
+def _band(fields: _Fields) -> tuple[str, float, float | None, int]:
+    """(name, centre wavelength, width, rig index) from the ``Camera:`` tags, or DJI's."""
+    xmp = fields.xmp
+    if "Camera:BandName" not in xmp and is_dji(xmp):
+        band = dji_band(xmp)
+        if band is None:
+            raise fields.missing("drone-dji:BandName (or BandFreq, SensorIndex)", "give the camera's own files")
+        return band
+    name = fields.text("Camera:BandName", "give the camera's own files (the band name is in their XMP)")
+    wavelength = fields.numbers("Camera:CentralWavelength", 1, "give the camera's own files")[0]
+    fwhm = numbers(xmp["Camera:WavelengthFWHM"])[0] if "Camera:WavelengthFWHM" in xmp else None
+    rig_index = int(fields.numbers("Camera:RigCameraIndex", 1, f"give the bands' order with {RIG_OPTION}")[0])
+    return name, wavelength, fwhm, rig_index
+
+
+def _geometry(fields: _Fields, rig_index: int) -> tuple[Lens, np.ndarray | None]:
+    """The lens and rotation: the ``Camera:`` tags, or DJI's ``DewarpData`` and alignment tags."""
+    xmp = fields.xmp
+    if "Camera:ModelType" not in xmp and is_dji(xmp):
+        lens = dji_lens(xmp)
+        if lens is None:
+            raise fields.missing("drone-dji:DewarpData and CalibratedOpticalCenterX/Y",
+                                 f"give the lenses with {RIG_OPTION}")
+        return lens, _rotation(fields, rig_index) if "Camera:RigRelatives" in xmp else dji_rotation(xmp, lens)
+    return _lens(fields), _rotation(fields, rig_index)
+
+
+def read_first_page_tags(path: Path) -> tuple[dict[int, object], tuple[int, ...]]:
+    """(tags of the first page, its shape); one line naming the file when it is no readable
+    TIFF (tifffile's own messages held back)."""
+    try:
+        with quiet_tifffile(), tifffile.TiffFile(path) as tiff:
+            page = tiff.pages[0] if len(tiff.pages) else None
+            found = None if page is None else ({tag.code: tag.value for tag in page.tags.values()}, tuple(page.shape))
+    except (OSError, tifffile.TiffFileError, IndexError, ValueError, KeyError) as error:
+        reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise CadeError(f"{path.name}: cannot read it as a TIFF ({reason}); give the camera's band files") from None
+    if found is None:
+        raise CadeError(f"{path.name}: a TIFF with no image in it (cut short?); give the camera's band files")
+    return found
+
+
+def read_band_file(path: Path | str, *, need_geometry: bool = True, own_outputs: bool = True) -> BandFile:
     """The :class:`BandFile` of one band TIFF.
 
     Args:
         path: a single-band TIFF written by the camera.
         need_geometry: False reads the lens and rotation only when present (``--rig``
             supplies the rest); True requires them.
+        own_outputs: False refuses a file cade wrote (:class:`CadeOutputFile`: its Software
+            tag starts with :data:`CADE_SOFTWARE`) before anything else is read.
 
     Raises:
         CadeError: not a readable TIFF, not one band, or a required property missing,
             in one line naming the property and the option that supplies it.
     """
     path = Path(path)
-    try:
-        with tifffile.TiffFile(path) as tiff:
-            page = tiff.pages[0]
-            tags = {tag.code: tag.value for tag in page.tags.values()}
-            shape = page.shape
-    except (OSError, tifffile.TiffFileError, IndexError) as error:
-        raise CadeError(f"{path}: cannot read it as a TIFF ({error}); give the camera's band files") from None
+    tags, shape = read_first_page_tags(path)
+    software = str(tags.get(305, "")).strip()
+    if not own_outputs and software.lower().startswith(CADE_SOFTWARE):
+        raise CadeOutputFile(f"{path.name}: written by cade (Software {software!r}), not a camera's band file")
     if len(shape) != 2:
         raise CadeError(f"{path.name} has shape {shape}; a band file holds one band (H, W)")
     xmp = parse_xmp(tags.get(700, b""))
@@ -209,16 +286,13 @@ def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
             exif[name] = tags[code]
     exif["_make"] = str(tags.get(271, "")).strip()
     fields = _Fields(path, xmp, exif)
-    name = fields.text("Camera:BandName", "give the camera's own files (the band name is in their XMP)")
-    wavelength = fields.numbers("Camera:CentralWavelength", 1, "give the camera's own files")[0]
-    fwhm = numbers(xmp["Camera:WavelengthFWHM"])[0] if "Camera:WavelengthFWHM" in xmp else None
-    rig_index = int(fields.numbers("Camera:RigCameraIndex", 1, f"give the bands' order with {RIG_OPTION}")[0])
-    capture_id = xmp.get("MicaSense:CaptureId") or xmp.get("Camera:CaptureUUID")
+    name, wavelength, fwhm, rig_index = _band(fields)
+    capture_id = xmp.get("MicaSense:CaptureId") or xmp.get("Camera:CaptureUUID") or xmp.get("drone-dji:CaptureUUID")
     if need_geometry:
-        lens, rotation = _lens(fields), _rotation(fields, rig_index)
+        lens, rotation = _geometry(fields, rig_index)
     else:  # --rig supplies them: what the file has is not needed
         try:
-            lens, rotation = _lens(fields), _rotation(fields, rig_index)
+            lens, rotation = _geometry(fields, rig_index)
         except CadeError:
             lens = rotation = None
     if rotation is None and need_geometry:
@@ -227,6 +301,10 @@ def read_band_file(path: Path | str, *, need_geometry: bool = True) -> BandFile:
     black_level = float(np.mean(black)) if black is not None else 0.0
     camera = f"{str(tags.get(271, '')).strip()} {str(tags.get(272, '')).strip()}".strip()
     calibration = text_of(xmp.get("Camera:CalibrationPicture", "")).strip()
+    reference = text_of(xmp.get("Camera:RigRelativesReferenceRigCameraIndex", "")).strip()
+    serial = exif.get("BodySerialNumber") or tags.get(42033) or text_of(xmp.get("Camera:BodySerialNumber", ""))
     return BandFile(path, name, wavelength, fwhm, rig_index, text_of(capture_id) if capture_id else None,
                     camera, (int(shape[1]), int(shape[0])), lens, rotation, black_level,
-                    int(calibration) if calibration.isdigit() else None)
+                    int(calibration) if calibration.isdigit() else None,
+                    int(reference) if reference.lstrip("-").isdigit() else None,
+                    str(serial).strip() or None, software, dji_radiometry(xmp) if is_dji(xmp) else {})

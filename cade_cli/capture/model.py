@@ -1,6 +1,8 @@
 """A capture as a rig: its band files (any order) sorted by rig index, the reference band, the
 common pinhole frame the bands are registered in, and where each frame's pixels fall in each
 raw band image (undistortion and lens rotation, optionally a residual homography and a shift).
+Bands may differ in size (a panchromatic band at twice the size, a 160x120 thermal band): each
+band's lens maps rays to its own pixels; ``--bands`` chooses which bands a capture keeps.
 """
 
 from __future__ import annotations
@@ -29,10 +31,20 @@ class Capture:
     Attributes:
         bands: one :class:`BandFile` per band, in rig-index order (the capture's band order).
         reference: index into ``bands`` of the reference band.
+        left_out: the bands ``--bands`` left out, in rig-index order.
+        linked: (band name, degrees) per second camera body's reference band: its rotation
+            against the reference as measured from the images, None where the capture was too
+            near to measure it (:func:`cade_cli.capture.cameras.link_cameras`).
+        first_camera_parallax: the first camera's bands' displacement from infinity, px, that
+            decided it (:func:`cade_cli.capture.cameras.first_camera_parallax`); None without
+            a second camera.
     """
 
     bands: tuple[BandFile, ...]
     reference: int
+    left_out: tuple[BandFile, ...] = ()
+    linked: tuple[tuple[str, float | None], ...] = ()
+    first_camera_parallax: float | None = None
 
     @property
     def reference_band(self) -> BandFile:
@@ -40,7 +52,7 @@ class Capture:
 
     @property
     def size(self) -> tuple[int, int]:
-        """(width, height) of every band, px."""
+        """(width, height) of the reference band (the output grid), px."""
         return self.reference_band.size
 
     @cached_property
@@ -86,12 +98,41 @@ def _from_rig(band: BandFile, rig) -> BandFile:
             K = camera.K
             lens = BrownLens(float((K[0, 0] + K[1, 1]) / 2), (float(K[0, 2]), float(K[1, 2])),
                              dist[0], dist[1], dist[4], dist[2], dist[3])
-            return replace(band, lens=lens, rotation=np.asarray(camera.R, np.float64))
+            return replace(band, lens=lens, rotation=np.asarray(camera.R, np.float64),
+                           rotation_reference=None)  # the rig's rotations all refer to its reference
     raise CadeError(f"the rig has no camera for band {band.name!r} (its cameras: "
                     f"{', '.join(c.band for c in rig.cameras)}); name the camera's band {band.name!r} in the rig")
 
 
-def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, rig=None) -> Capture:
+def parse_bands(text: str | None) -> tuple[str, ...] | None:
+    """``--bands``'s value: band names separated by commas (``"Blue,Green,Red,NIR,Red edge"``,
+    case-insensitive, spaces inside a name kept); None or empty: every band."""
+    if text is None or not text.strip():
+        return None
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    return names or None
+
+
+def select_bands(bands: Sequence[BandFile], wanted: Sequence[str] | None) -> tuple[list[BandFile], list[BandFile]]:
+    """(kept, left out): the bands named in ``wanted`` (case-insensitive), all when None.
+
+    Raises:
+        CadeError: a name that is no band's, naming the bands there are.
+    """
+    if not wanted:
+        return list(bands), []
+    names = {band.name.lower() for band in bands}
+    unknown = [name for name in wanted if name.lower() not in names]
+    if unknown:
+        raise CadeError(f"--bands {unknown[0]!r}: the capture has no such band (its bands: "
+                        f"{', '.join(band.name for band in bands)})")
+    keep = {name.lower() for name in wanted}
+    return ([band for band in bands if band.name.lower() in keep],
+            [band for band in bands if band.name.lower() not in keep])
+
+
+def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, rig=None,
+                 bands: Sequence[str] | None = None) -> Capture:
     """The :class:`Capture` of a shot's band files.
 
     Args:
@@ -99,18 +140,23 @@ def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, r
         reference: the reference band's name (case-insensitive); None: Green.
         rig: a :class:`~cade_cli.rigs.rig.Rig` whose calibrated cameras (matched by band
             name) give the lenses and rotations instead of the files' metadata.
+        bands: the band names to keep (``--bands``, :func:`parse_bands`); None: all.
 
     Raises:
-        CadeError: fewer than two files, bands of different shots (capture ids) or sizes, a
-            band given twice, an unknown reference, or metadata missing (one line naming it).
+        CadeError: fewer than two files (or bands kept), bands of different shots (capture
+            ids), a band given twice, an unknown reference or band name, or metadata missing
+            (one line naming it).
     """
     if len(paths) < 2:
         raise CadeError(f"a capture needs two band files or more, got {len(paths)}; give every band of the shot "
                         "(e.g. IMG_0001_*.tif)")
-    bands = [read_band_file(path, need_geometry=rig is None) for path in paths]
-    if rig is not None:
-        bands = [_from_rig(band, rig) for band in bands]
-    bands.sort(key=lambda band: band.rig_index)
+    found = sorted((read_band_file(path, need_geometry=rig is None) for path in paths),
+                   key=lambda band: band.rig_index)
+    kept, left_out = select_bands(found, bands)
+    if len(kept) < 2:
+        raise CadeError(f"--bands keeps {len(kept)} band ({', '.join(b.name for b in kept)}); a capture needs two "
+                        "or more")
+    bands = [_from_rig(band, rig) for band in kept] if rig is not None else kept
     ids = {band.capture_id for band in bands if band.capture_id}
     if len(ids) > 1:
         raise CadeError(f"the files come from {len(ids)} captures (capture ids {', '.join(sorted(ids))}); give the "
@@ -119,17 +165,13 @@ def load_capture(paths: Sequence[Path | str], *, reference: str | None = None, r
         if first.rig_index == second.rig_index or first.name == second.name:
             raise CadeError(f"{first.path.name} and {second.path.name} are the same band ({first.name}, rig index "
                             f"{first.rig_index}); give each band once")
-    sizes = {band.size for band in bands}
-    if len(sizes) > 1:
-        raise CadeError(f"the band files differ in size ({', '.join(f'{w}x{h}' for w, h in sorted(sizes))}); "
-                        "give the band files of one camera")
     wanted = (reference or DEFAULT_REFERENCE).lower()
     matches = [i for i, band in enumerate(bands) if band.name.lower() == wanted]
     if not matches:
         option = "--reference NAME" if reference is None else "--reference"
         raise CadeError(f"the capture has no band {reference or DEFAULT_REFERENCE!r} (its bands: "
                         f"{', '.join(b.name for b in bands)}); choose one with {option}")
-    return Capture(tuple(bands), matches[0])
+    return Capture(tuple(bands), matches[0], tuple(left_out))
 
 
 CHUNK_PIXELS = 1 << 20

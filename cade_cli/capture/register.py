@@ -18,10 +18,13 @@ import cv2
 import numpy as np
 import tifffile
 
+from cade_cli.capture.cameras import link_cameras
 from cade_cli.capture.homography import ecc_homography
+from cade_cli.capture.metadata import quiet_tifffile
 from cade_cli.capture.model import Capture, band_pixels, reference_frame_pixels
 from cade_cli.capture.parallax import (Parallax, band_features, cross_spectral_matches, measure_parallax,
                                        plane_from_matches, plane_homography, refine_matches)
+from cade_cli.capture.radiometry import Radiometry
 from cade_cli.errors import CadeError
 from cade_cli.matching.disparity import densify
 from cade_cli.rigs.array import fuse_votes, match_camera
@@ -48,7 +51,9 @@ class BandResult:
     Attributes:
         name: band name.
         path: ``"reference"``, ``"plane-only"``, ``"plane"`` (the parallax was below the cheap
-            path's threshold) or ``"parallax"``.
+            path's threshold), ``"parallax"`` or ``"rig"`` (a band over :data:`COARSE_BAND` times
+            coarser than the reference, e.g. a thermal band: placed by its lens and rotation
+            alone, no matching).
         homography: (3, 3) common-frame px of the reference -> of the band (rotation removed):
             the plane the ``plane-only`` and ``plane`` paths use.
         parallax: what the matches showed (None for the reference and ``--plane-only``).
@@ -93,6 +98,9 @@ class CaptureRegistration:
     results: tuple[BandResult, ...]
     sampled: tuple[tuple[np.ndarray, np.ndarray] | None, ...]
     seconds: float
+    radiometry: Radiometry | None = None
+    """None: ``bands`` hold raw values; else what each band was converted to (radiance or
+    reflectance, :mod:`cade_cli.capture.radiometry`) before its one resampling."""
 
 
 def saturation_level(raw: np.ndarray) -> int:
@@ -112,9 +120,11 @@ def read_raw(capture: Capture) -> list[np.ndarray]:
     raw = []
     for band in capture.bands:
         try:
-            image = tifffile.imread(band.path, key=0)
-        except (OSError, tifffile.TiffFileError, ValueError) as error:
-            raise CadeError(f"{band.path}: cannot read its pixels ({error})") from None
+            with quiet_tifffile():
+                image = tifffile.imread(band.path, key=0)
+        except (OSError, tifffile.TiffFileError, ValueError, IndexError) as error:
+            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise CadeError(f"{band.path}: cannot read its pixels ({reason})") from None
         if image.shape != (band.size[1], band.size[0]):
             raise CadeError(f"{band.path.name} holds {image.shape} pixels, its tags say {band.size[::-1]}")
         raw.append(image)
@@ -189,11 +199,25 @@ def refined_plane(reference: np.ndarray, band: np.ndarray, homography: np.ndarra
     return refined / refined[2, 2]
 
 
+COARSE_BAND = 3.0
+"""A band whose focal length (px) is this many times shorter than the reference's (a 160x120
+thermal band beside 1.2-3 MP bands) is not matched: upsampled onto the reference's grid it
+holds too little detail, and other light, for cross-spectral features; its lens and rotation
+place it (its parallax is below its own pixel at any height a flight is flown)."""
+
+
+def coarse(capture: Capture, index: int) -> bool:
+    """Whether band ``index`` is :data:`COARSE_BAND` times coarser than the reference."""
+    return capture.bands[index].lens.focal * COARSE_BAND < capture.reference_band.lens.focal
+
+
 def _band_geometry(capture, index, raw_band, reference, reference_features, grid, *, reference_seen, plane_only,
                    method, scale, model) -> tuple[BandResult, np.ndarray | None, np.ndarray | None]:
     """One band's :class:`BandResult` and, for the parallax path, its dense disparity and trust
     in the common frame."""
     name = capture.bands[index].name
+    if coarse(capture, index):
+        return BandResult(name, "rig", np.eye(3), None, None, 0), None, None
     x, y = grid
     rotated, seen = sample_bilinear(raw_band, *band_pixels(capture, index, x, y))
     if plane_only:
@@ -224,6 +248,7 @@ def matching_scale(capture: Capture, scale: float) -> float:
 
 def register_capture(capture: Capture, *, plane_only: bool = False, method: str = DEFAULT_METHOD,
                      scale: float = DEFAULT_MATCH_SCALE, model: str | None = None, keep_sampled: bool = False,
+                     radiometry: Radiometry | None = None,
                      on_band: Callable[[BandResult], None] | None = None) -> CaptureRegistration:
     """Register every band of ``capture`` onto its reference band.
 
@@ -238,6 +263,9 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
         keep_sampled: keep where each output pixel was sampled in each band
             (:attr:`CaptureRegistration.sampled`; two float32 maps per band).
         on_band: called with each band's :class:`BandResult` once it is done (progress).
+        radiometry: convert each band's raw image to radiance or reflectance by its camera's
+            model before its one resampling (the matching still uses the raw signals); None
+            keeps the raw values.
 
     Returns:
         :class:`CaptureRegistration`.
@@ -251,8 +279,10 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     x, y = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     ref_index = capture.reference
     signal = [np.asarray(image, np.float32) - np.float32(band.black_level) for image, band in zip(raw, capture.bands)]
+    capture = link_cameras(capture, signal)  # a second camera body's rotation, measured (RedEdge-MX Dual)
     reference, reference_seen = sample_bilinear(signal[ref_index], *band_pixels(capture, ref_index, x, y))
     reference_features = band_features(reference)
+    values_of = raw if radiometry is None else radiometry.convert(raw, [band.path for band in capture.bands])
     raw_x, raw_y = np.meshgrid(*(np.arange(n, dtype=np.float32) for n in capture.size))
     px, py = reference_frame_pixels(capture, raw_x, raw_y)  # the output grid (reference raw px) in the common frame
     bands, valid, saturated, results, sampled = [], [], [], [], []
@@ -260,7 +290,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
         level = saturation_level(raw[index])
         if index == ref_index:
             result = BandResult(band.name, "reference", np.eye(3), None, None, 0)
-            bands.append(raw[index].astype(np.float32))
+            bands.append(values_of[index].astype(np.float32))
             valid.append(np.ones(raw[index].shape, bool))
             saturated.append(raw[index] >= level)
             sampled.append((raw_x, raw_y) if keep_sampled else None)
@@ -279,7 +309,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
                 u, v = band_pixels(capture, index,
                                    px + shift * np.float32(parallax.normal[0]) - d * np.float32(parallax.baseline[0]),
                                    py + shift * np.float32(parallax.normal[1]) - d * np.float32(parallax.baseline[1]))
-            values, inside = sample_bilinear(raw[index], u, v)
+            values, inside = sample_bilinear(values_of[index], u, v)
             touched, _ = sample_bilinear((raw[index] >= level).astype(np.float32), u, v)
             bands.append(values)
             valid.append(inside & seen)
@@ -290,4 +320,4 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
             on_band(result)
     bands = [np.where(ok, values, np.float32(np.nan)).astype(np.float32) for values, ok in zip(bands, valid)]
     return CaptureRegistration(capture, tuple(raw), tuple(bands), tuple(valid), tuple(saturated), tuple(results),
-                               tuple(sampled), time.perf_counter() - start)
+                               tuple(sampled), time.perf_counter() - start, radiometry)

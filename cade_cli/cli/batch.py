@@ -10,6 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from cade_cli.cli.capture_radiometry import PanelAlbedoOption, PanelCornersOption
 from cade_cli.cli.options import (
     DEFAULT_METHOD, MaxDispAutoOption, MethodOption, MinDispAutoOption, ModelOption, PreprocessOption,
     VisRangeOption, band_option, check_output, parse_memory_limit, parse_range_options, parse_vis_range, print_note,
@@ -90,6 +91,9 @@ def batch(
                                                      file_okay=False, show_default=False)] = None,
     reference: Annotated[Optional[str], typer.Option("--reference", help="With --captures: the reference band "
                                                      "(default: Green).", show_default=False)] = None,
+    bands: Annotated[Optional[str], typer.Option("--bands", help="With --captures: the bands to keep, by name, "
+                                                 "separated by commas (e.g. 'Blue,Green,Red,NIR,Red edge').",
+                                                 show_default=False)] = None,
     plane_only: Annotated[bool, typer.Option("--plane-only", help="With --captures: one homography per band, no "
                                              "parallax.")] = False,
     dtype: Annotated[str, typer.Option("--dtype", help="With --captures: float32, or uint16 with a .valid.tif mask "
@@ -100,10 +104,27 @@ def batch(
     skip_panels: Annotated[bool, typer.Option("--skip-panels", help="With --captures: leave out the calibration "
                                               "panel shots (tagged Camera:CalibrationPicture, or named by --panel), "
                                               "with a note.")] = False,
-    panel: Annotated[Optional[list[str]], typer.Option("--panel", help="With --captures: a capture (name or capture "
-                                                       "id) that is a panel shot, for cameras that do not tag them "
-                                                       "(MicaSense); repeat it for several.", metavar="NAME",
+    panel: Annotated[Optional[list[str]], typer.Option("--panel", help="With --captures: a panel shot, by capture "
+                                                       "name, capture id or one of its band files (for cameras that "
+                                                       "do not tag them: MicaSense); repeat it for several. With "
+                                                       "--reflectance the first one's irradiance, measured once, "
+                                                       "serves every capture of the flight.", metavar="NAME|FILE",
                                                        show_default=False)] = None,
+    per_band: Annotated[Optional[Path], typer.Option("--per-band", help="With --captures: also write every capture's "
+                                                     "aligned single-band TIFFs into this folder (the flight's "
+                                                     "subfolders mirrored), named and tagged as their source files: "
+                                                     "OpenDroneMap's multispectral input (docs/drone.md).",
+                                                     file_okay=False, show_default=False)] = None,
+    radiance: Annotated[bool, typer.Option("--radiance", help="With --captures: write radiance instead of raw "
+                                           "values, every band by its own camera's radiometric model, as "
+                                           "register-capture --radiance. float32 only.")] = False,
+    reflectance: Annotated[bool, typer.Option("--reflectance", help="With --captures: write reflectance (pi * "
+                                              "radiance / irradiance): the irradiance of each capture's own DLS "
+                                              "tags, or with --panel the panel shot's for the whole flight (as "
+                                              "MicaSense's flight workflow: right only under the panel shot's "
+                                              "light). float32 only.")] = False,
+    panel_corners: PanelCornersOption = None,
+    panel_albedo: PanelAlbedoOption = None,
 ) -> None:
     """Disparity of many pairs: resumable, one pair failing does not stop the others, on N processes or a Dask cluster.
 
@@ -112,11 +133,13 @@ def batch(
     any pair failed. With --captures: a drone flight, one registered cube per capture (docs/drone.md).
     """
     from cade_cli.cli.batch_captures import Engine, FlightArguments, batch_captures, check_flight_sources
-    from cade_cli.scale.batch import check_output_ranges, run_dask, run_local
-    from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_pairs import PairOptions, is_finished, skipped_result
+    from cade_cli.batch.engines import check_output_ranges, run_dask, run_local
+    from cade_cli.batch.job import remove_stale_temporaries
+    from cade_cli.batch.pairs import PairOptions, is_finished, skipped_result
 
-    flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()))
+    flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()),
+                             bands=bands, per_band=per_band, radiance=radiance, reflectance=reflectance,
+                             panel_corners=tuple(panel_corners or ()), panel_albedo=panel_albedo)
     check_flight_sources(captures, flight, left=left, right=right, manifest=manifest, rig=rig_file)
     if captures is not None:
         return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,
@@ -180,7 +203,7 @@ def _pairs_and_log(options, *, manifest: Path | None, left: str | None, right: s
     """The batch's pairs (from the manifest, or the two patterns into ``output_dir``, made if
     missing) and its log file (default: beside the manifest, or in ``output_dir``)."""
     from cade_cli.errors import CadeError
-    from cade_cli.scale.batch_pairs import pairs_from_manifest, pairs_from_patterns
+    from cade_cli.batch.pairs import pairs_from_manifest, pairs_from_patterns
 
     if manifest is not None:
         pairs = pairs_from_manifest(manifest, options=options)
@@ -194,7 +217,7 @@ def _pairs_and_log(options, *, manifest: Path | None, left: str | None, right: s
 
 def _jobs_that_fit(todo: list, jobs: int) -> int:
     """``jobs``, lowered (with a note) until that many jobs of the largest pair fit the memory available."""
-    from cade_cli.scale.batch import available_memory_bytes, cap_jobs, job_memory_bytes
+    from cade_cli.batch.engines import available_memory_bytes, cap_jobs, job_memory_bytes
 
     width, height, per_job = job_memory_bytes(todo)  # the largest pair, or the memory limit
     allowed = cap_jobs(jobs, per_job)

@@ -23,6 +23,12 @@ class FlightArguments:
     match_scale: float = 0.5
     skip_panels: bool = False
     panels: tuple[str, ...] = ()
+    bands: str | None = None
+    per_band: Path | None = None
+    radiance: bool = False
+    reflectance: bool = False
+    panel_corners: tuple[str, ...] = ()
+    panel_albedo: str | None = None
 
     def given(self) -> list[str]:
         """The options given a value other than their default, as the user writes them."""
@@ -67,14 +73,15 @@ def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArgume
                    model: str | None, vis: bool, engine: Engine, force: bool, log: Path | None) -> None:
     """Register every capture of the flight folder ``captures`` into ``output_dir``, one cube each.
 
-    A capture whose cube and record are verified (:func:`cade_cli.scale.batch_captures.is_finished`)
-    is skipped unless ``force``; the others run on ``engine`` (:func:`cade_cli.scale.batch.run_local`
-    or :func:`~cade_cli.scale.batch.run_dask`) with the pair batch's bar and log (:mod:`cade_cli.cli.batch_run`).
+    A capture whose cube and record are verified (:func:`cade_cli.batch.captures.is_finished`)
+    is skipped unless ``force``; the others run on ``engine`` (:func:`cade_cli.batch.engines.run_local`
+    or :func:`~cade_cli.batch.engines.run_dask`) with the pair batch's bar and log (:mod:`cade_cli.cli.batch_run`).
     """
     from cade_cli.cli.options import check_output
     from cade_cli.errors import CadeError
-    from cade_cli.scale.batch_captures import CaptureOptions, flight_jobs, is_finished, skipped_result
-    from cade_cli.scale.batch_job import remove_stale_temporaries
+    from cade_cli.batch.captures import is_finished, skipped_result
+    from cade_cli.batch.flight import find_captures, flight_jobs
+    from cade_cli.batch.job import remove_stale_temporaries
 
     if output_dir is None:
         raise CadeError("missing --output-dir: give --captures FLIGHT_FOLDER --output-dir CUBES")
@@ -83,16 +90,21 @@ def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArgume
     if engine.cluster and engine.jobs != 1:
         raise CadeError("--jobs sets processes on this machine; on a cluster the workers' own --nworkers do; "
                         "drop --jobs")
-    options = CaptureOptions(reference=flight.reference, method=method, model=model, plane_only=flight.plane_only,
-                             dtype=flight.dtype, match_scale=flight.match_scale, vis=vis, ndvi=flight.ndvi)
-    options.check()
+    options = _capture_options(flight, method=method, model=model, vis=vis)
     if output_dir.exists() and not output_dir.is_dir():
         raise CadeError(f"--output-dir {output_dir} is a file; give a folder")
-    jobs, notes = flight_jobs(captures, output_dir, options, skip_panels=flight.skip_panels, panels=flight.panels)
+    if flight.per_band is not None:
+        from cade_cli.io.atomic import check_writable_folder
+
+        check_writable_folder(flight.per_band)
+    found, notes = find_captures(captures, output_dir, per_band=flight.per_band)
+    options, values = _flight_irradiance(found, options, flight)
+    jobs, panel_notes = flight_jobs(found, output_dir, options, skip_panels=flight.skip_panels, panels=flight.panels,
+                                    per_band=flight.per_band)
     output_dir.mkdir(parents=True, exist_ok=True)
     log = output_dir / "cade-batch-log.json" if log is None else log
     check_output(log, suffixes=(".json",), inputs=())
-    for note in notes:
+    for note in notes + panel_notes:
         print_note(note)
     remove_stale_temporaries(jobs)  # left by a run that was killed
     results = [] if force else [skipped_result(job) for job in jobs if is_finished(job)]
@@ -107,7 +119,55 @@ def batch_captures(captures: Path, output_dir: Path | None, flight: FlightArgume
               "skip_panels": flight.skip_panels, "panels": list(flight.panels), "options": options.fingerprint()}
     if results:
         print_note(f"{len(results)} of {len(jobs)} captures already finished (cubes verified); --force redoes them")
+    for line in values:  # what the cubes' values are, once for the flight
+        print(line, file=sys.stderr)
     _run(todo, results, engine=engine, log=log, config=config)
+
+
+def _capture_options(flight: FlightArguments, *, method: str, model: str | None, vis: bool):
+    """The :class:`~cade_cli.batch.captures.CaptureOptions` of every capture, checked before any
+    file is read (the panel's irradiance is added once the flight is found)."""
+    from cade_cli.batch.captures import CaptureOptions
+    from cade_cli.capture.model import parse_bands
+    from cade_cli.cli.capture_radiometry import check_radiometry_options
+    from cade_cli.errors import CadeError
+
+    if (flight.panel_corners or flight.panel_albedo) and not flight.reflectance:
+        raise CadeError("--panel-corners and --panel-albedo describe the panel of a reflectance; add --reflectance")
+    check_radiometry_options(radiance=flight.radiance, reflectance=flight.reflectance,
+                             panel=list(flight.panels) if flight.reflectance else None,
+                             panel_corners=flight.panel_corners, panel_albedo=flight.panel_albedo, dtype=flight.dtype)
+    radiometry = "radiance" if flight.radiance else "reflectance" if flight.reflectance else None
+    options = CaptureOptions(reference=flight.reference, method=method, model=model, plane_only=flight.plane_only,
+                             dtype=flight.dtype, match_scale=flight.match_scale, vis=vis, ndvi=flight.ndvi,
+                             bands=parse_bands(flight.bands), radiometry=radiometry)
+    options.check()
+    return options
+
+
+def _flight_irradiance(found: list, options, flight: FlightArguments) -> tuple:
+    """(``options`` with the panel shot's irradiance for every capture when ``--reflectance
+    --panel`` is given: the first ``--panel`` value's shot, read and located once; the lines that
+    say what the flight's values are, printed once after the run)."""
+    from dataclasses import replace
+
+    from cade_cli.batch.radiometry import first_whole_capture, kept_bands, panel_shot_files, values_note
+    from cade_cli.cli.capture_radiometry import panel_radiometry
+
+    lines = []
+    if options.radiometry == "reflectance" and flight.panels:
+        capture = first_whole_capture(found)
+        paths, names = kept_bands(capture.paths, capture.bands, options.bands)
+        radiometry, lines = panel_radiometry(panel_shot_files(flight.panels[0], found), paths, names,
+                                             panel_corners=list(flight.panel_corners) or None,
+                                             panel_albedo=flight.panel_albedo)
+        options = replace(options, irradiance=dict(zip(names, radiometry.irradiance)),
+                          irradiance_source=radiometry.source)
+        if len(flight.panels) > 1:
+            lines.append(f"  (the first --panel, {flight.panels[0]}, gives the irradiance; the others are only "
+                         "marked as panel shots)")
+    note = values_note(options, found)
+    return options, ([note] if note else []) + lines[1:]
 
 
 def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict) -> None:
@@ -116,14 +176,16 @@ def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict) 
     it, the log), then the summary line; CadeError when a capture failed."""
     from cade_cli.cli.batch_run import run_jobs
     from cade_cli.errors import CadeError
-    from cade_cli.scale.batch import run_dask, run_local
+    from cade_cli.batch.engines import run_dask, run_local
 
     running = (run_dask(todo, address=engine.scheduler, scheduler_file=engine.scheduler_file, threads=engine.threads)
                if engine.cluster else run_local(todo, jobs=engine.jobs, threads=engine.threads))
-    shown: set[str] = set()
+    noted: dict[str, list[str]] = {}
     summary = run_jobs(todo, results, running, total=len(todo) + len(results), noun="captures",
                        label=f"captures ({engine.name})", log=log, config=config,
-                       show=lambda console, result: _show(console, result, shown))
+                       show=lambda console, result: _show(console, result, noted))
+    for note, names in noted.items():
+        print_note(summarise_note(note, names, total=summary.total))
     per_capture = f"{summary.seconds / summary.done:.1f} s per capture, " if summary.done else ""
     print(f"{summary.done} done, {summary.skipped} already finished, {summary.failed} failed, of {summary.total} "
           f"captures; {summary.seconds:.1f} s ({per_capture}{engine.name}); log {log}")
@@ -131,20 +193,30 @@ def _run(todo: list, results: list, *, engine: Engine, log: Path, config: dict) 
         raise CadeError(f"{summary.failed} of {summary.total} captures failed (each named above and in {log})")
 
 
-def _show(console, result, shown: set[str]) -> None:
-    """What one finished capture has to say above the bar: its notes (each once) or its failure."""
+def summarise_note(note: str, names: list[str], *, total: int) -> str:
+    """One line for a note that ``names`` (captures) share: the note, how many captures of
+    ``total`` it applies to, the first few named."""
+    if len(names) == 1:
+        return f"{names[0]}: {note}"
+    shown = ", ".join(names[:3]) + (" ..." if len(names) > 3 else "")
+    return f"{note} ({len(names)} of {total} captures: {shown})"
+
+
+def _show(console, result, noted: dict[str, list[str]]) -> None:
+    """What one finished capture has to say above the bar: its failure; its notes are kept in
+    ``noted`` (note -> captures) and shown once per flight, with a count, when all are done."""
     for note in result.notes:
-        if f"{result.name}: {note}" not in shown:
-            shown.add(f"{result.name}: {note}")
-            console.print(f"note: {result.name}: {note}", highlight=False, markup=False)
+        names = noted.setdefault(note, [])
+        if result.name not in names:
+            names.append(result.name)
     if result.status == "failed":
         console.print(f"warning: capture {result.name} failed: {result.error}", highlight=False, markup=False)
 
 
 def _jobs_that_fit(todo: list, jobs: int) -> int:
     """``jobs``, lowered (with a note) until that many jobs of the largest capture fit the memory available."""
-    from cade_cli.scale.batch import available_memory_bytes, cap_jobs
-    from cade_cli.scale.batch_captures import capture_memory_bytes
+    from cade_cli.batch.engines import available_memory_bytes, cap_jobs
+    from cade_cli.batch.captures import capture_memory_bytes
 
     size, per_job = capture_memory_bytes(todo)
     allowed = cap_jobs(jobs, per_job)

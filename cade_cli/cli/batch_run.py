@@ -37,8 +37,8 @@ def run_jobs(todo: list, results: list, running: Iterable, *, total: int, noun: 
     from contextlib import nullcontext
 
     from cade_cli.io.atomic import atomic_output
-    from cade_cli.scale.batch_job import remove_stale_temporaries
-    from cade_cli.scale.batch_log import BatchSummary, log_document
+    from cade_cli.batch.job import remove_stale_temporaries
+    from cade_cli.batch.log import BatchSummary, log_document
 
     summary = BatchSummary(total=total, skipped=len(results))
     progress = progress_bar(noun)

@@ -10,12 +10,14 @@ from typing import Annotated, Optional
 
 import typer
 
+from cade_cli.cli.capture_radiometry import (PanelAlbedoOption, PanelCornersOption, PanelOption, RadianceOption,
+                                             ReflectanceOption, build_radiometry, check_radiometry_options)
 from cade_cli.cli.options import DEFAULT_METHOD, MethodOption, ModelOption, StepBar, check_output, print_note
 
 
 def _describe(result) -> str:
     """One band's part of the summary line."""
-    if result.path in ("reference", "plane-only"):
+    if result.path in ("reference", "plane-only", "rig"):
         return f"{result.name}: {result.path}"
     parallax = result.parallax
     direction = f"baseline ({parallax.baseline[0]:+.2f}, {parallax.baseline[1]:+.2f})"
@@ -30,13 +32,16 @@ def register_capture(
                                                 "order (e.g. IMG_0001_*.tif): the camera's own TIFFs, whose XMP "
                                                 "says which band each is and how its lens sits.", exists=True,
                                                 dir_okay=False, show_default=False)],
-    output: Annotated[Path, typer.Option("--output", "-o", help="Cube: multi-page TIFF, one page per band in the "
-                                         "capture's band order, on the reference band's raw pixel grid; float32 raw "
-                                         "values (bilinear interpolation), NaN where a band did not see the pixel, "
-                                         "+inf where saturated; band names and wavelengths in the tags, the "
-                                         "reference file's XMP carried over.", show_default=False)],
+    output: Annotated[Path, typer.Option("--output", "-o", help="Cube: one TIFF image of N bands (GDAL and QGIS "
+                                         "open N named bands) in the capture's band order, on the reference band's "
+                                         "raw pixel grid; float32 raw values (bilinear), NaN where a band did not "
+                                         "see the pixel (nodata), +inf where saturated; the reference file's EXIF, "
+                                         "GPS and XMP carried over (docs/drone.md).", show_default=False)],
     reference: Annotated[Optional[str], typer.Option("--reference", help="Reference band's name (default: Green, "
                                                      "as the vendors).", show_default=False)] = None,
+    bands: Annotated[Optional[str], typer.Option("--bands", help="The bands to keep, by name, separated by commas "
+                                                 "(e.g. --bands 'Blue,Green,Red,NIR,Red edge' leaves an Altum's LWIR "
+                                                 "out); default: every band given.", show_default=False)] = None,
     method: MethodOption = DEFAULT_METHOD,
     model: ModelOption = None,
     plane_only: Annotated[bool, typer.Option("--plane-only", help="One homography per band, fitted to sparse "
@@ -56,19 +61,68 @@ def register_capture(
                                                      file_okay=False, show_default=False)] = None,
     vis: Annotated[Optional[Path], typer.Option("--vis", help="Also write a false-colour PNG: NIR, Red, Green as red, "
                                                 "green, blue.", show_default=False)] = None,
-    ndvi: Annotated[Optional[Path], typer.Option("--ndvi", help="Also write an NDVI PNG (raw signals above black "
-                                                 "level) with its colour bar.", show_default=False)] = None,
+    ndvi: Annotated[Optional[Path], typer.Option("--ndvi", help="Also write an NDVI PNG with its colour bar (of "
+                                                 "raw signals above black level, or of --radiance / --reflectance; its "
+                                                 "caption says which).", show_default=False)] = None,
     match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Dense matching at this "
                                                "fraction of the resolution (the disparity is brought back to full "
                                                "size).")] = 0.5,
+    radiance: RadianceOption = False,
+    reflectance: ReflectanceOption = False,
+    panel: PanelOption = None,
+    panel_corners: PanelCornersOption = None,
+    panel_albedo: PanelAlbedoOption = None,
 ) -> None:
     """Register the bands of one drone multispectral capture onto its reference band, parallax included."""
-    from cade_cli.capture.cube import DTYPES, mask_path
-    from cade_cli.capture.model import load_capture
+    from cade_cli.capture.cube import mask_path
+    from cade_cli.capture.model import load_capture, parse_bands
     from cade_cli.capture.register import matching_scale, register_capture as register
-    from cade_cli.errors import CadeError
     from cade_cli.matching import get_matcher
     from cade_cli.rigs.rig_file import load_rig
+
+    _check_outputs(files, output, vis=vis, ndvi=ndvi, per_band=per_band, dtype=dtype)
+    check_radiometry_options(radiance=radiance, reflectance=reflectance, panel=panel, panel_corners=panel_corners,
+                             panel_albedo=panel_albedo, dtype=dtype)
+    if not plane_only:
+        get_matcher(method)  # refuse an unknown name before reading anything
+    mask = mask_path(output) if dtype == "uint16" else None
+    capture = load_capture(files, reference=reference, rig=None if rig_file is None else load_rig(rig_file),
+                           bands=parse_bands(bands))
+    radiometry, radiometry_lines = build_radiometry(capture, radiance=radiance, reflectance=reflectance, panel=panel,
+                                                    panel_corners=panel_corners, panel_albedo=panel_albedo)
+    scale = matching_scale(capture, match_scale)
+    if scale < match_scale and not plane_only:
+        print_note(f"matching at scale {scale:.2f} instead of {match_scale:g}: the bands are "
+                   f"{capture.size[0]}x{capture.size[1]} (dense matching keeps to 1.5 MP per band)")
+    with StepBar(len(capture.bands), "registering bands") as bar:
+        registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model,
+                                radiometry=radiometry, on_band=lambda result: bar.advance(f"{result.name} done"))
+    _print_notes(registration)
+    _write_outputs(registration, output, mask=mask, per_band=per_band, vis=vis, ndvi=ndvi, dtype=dtype)
+    _print_summary(registration, output, how='plane only' if plane_only else f'{method} at scale {scale:.2g}',
+                   lines=radiometry_lines)
+
+
+def _print_notes(registration) -> None:
+    """The notes of a registered capture: bands left out or placed another way, second cameras' rotations."""
+    from cade_cli.batch.captures import capture_notes
+
+    capture = registration.capture
+    for note in capture_notes(capture, {result.name: result.path for result in registration.results}):
+        print_note(note)
+    for name, angle in capture.linked:
+        print_note(f"{name}: rotation against {capture.reference_band.name} measured from the images: {angle:.2f} deg"
+                   if angle is not None else f"{name}: a second camera's reference band; the capture is too near to "
+                   f"measure its rotation against the first camera (its bands "
+                   f"{capture.first_camera_parallax:.1f} px from infinity): its tags' rotations kept, "
+                   "the plane fit takes the rest")
+
+
+def _check_outputs(files: list[Path], output: Path, *, vis: Path | None, ndvi: Path | None, per_band: Path | None,
+                   dtype: str) -> None:
+    """Refuse an unknown dtype and outputs that would overwrite the inputs, before any work."""
+    from cade_cli.capture.cube import DTYPES
+    from cade_cli.errors import CadeError
 
     if dtype not in DTYPES:
         raise CadeError(f"unknown --dtype {dtype!r}; choose one of {', '.join(DTYPES)}")
@@ -79,28 +133,18 @@ def register_capture(
     if per_band is not None and any(path.resolve().parent == per_band.resolve() for path in files):
         raise CadeError(f"--per-band {per_band} holds the band files themselves, which it would overwrite; "
                         "give another folder")
-    if not plane_only:
-        get_matcher(method)  # refuse an unknown name before reading anything
-    mask = mask_path(output) if dtype == "uint16" else None
-    capture = load_capture(files, reference=reference, rig=None if rig_file is None else load_rig(rig_file))
-    scale = matching_scale(capture, match_scale)
-    if scale < match_scale and not plane_only:
-        print_note(f"matching at scale {scale:.2f} instead of {match_scale:g}: the bands are "
-                   f"{capture.size[0]}x{capture.size[1]} (dense matching keeps to 1.5 MP per band)")
-    with StepBar(len(capture.bands), "registering bands") as bar:
-        registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model,
-                                on_band=lambda result: bar.advance(f"{result.name} done"))
-    for result in registration.results:
-        if result.path == "plane":
-            print_note(f"{result.name}: parallax below 0.3 px everywhere (a high flight): registered by its plane "
-                       "homography alone")
-    _write_outputs(registration, output, mask=mask, per_band=per_band, vis=vis, ndvi=ndvi, dtype=dtype)
+
+
+def _print_summary(registration, output: Path, *, how: str, lines: list[str]) -> None:
+    """The summary line of a registered capture, then ``lines`` (what its values are)."""
+    capture = registration.capture
     width, height = capture.size
     seen = ", ".join(f"{band.name} {100 * valid.mean():.0f}%" for band, valid in zip(capture.bands, registration.valid))
     bands = "; ".join(_describe(result) for result in registration.results)
-    print(f"{output}: {width}x{height}, {len(capture.bands)} bands onto {capture.reference_band.name} "
-          f"({'plane only' if plane_only else f'{method} at scale {scale:.2g}'}); {bands}; seen: {seen}; "
-          f"{registration.seconds:.1f} s per capture", file=sys.stderr)
+    print(f"{output}: {width}x{height}, {len(capture.bands)} bands onto {capture.reference_band.name} ({how}); "
+          f"{bands}; seen: {seen}; {registration.seconds:.1f} s per capture", file=sys.stderr)
+    for line in lines:
+        print(line, file=sys.stderr)
 
 
 def _write_outputs(registration, output: Path, *, mask: Path | None, per_band: Path | None, vis: Path | None,

@@ -30,7 +30,7 @@ MethodOption = Annotated[
         "-m",
         help=f"Matcher: {', '.join(METHOD_NAMES)}. The default, cade (the CADE network), is the most accurate "
         "on cross-spectral pairs in the project's benchmarks, and faster than census-sgm; census-sgm keeps thin "
-        "structures better (figures: docs/results.md).",
+        "structures better (figures: docs/research/evaluation.md).",
     ),
 ]
 
@@ -50,8 +50,8 @@ ModelOption = Annotated[
     Optional[str],
     typer.Option("--model", help="Network of the learned methods: a tier, fast (the default: cade-v13, "
                  "models/cade-v13.md) or accurate (cade-v13-accurate: the same network with a second pass on the "
-                 "pair enlarged 1.5x, about twice the time), a shipped card's name (cade-v4, cade-v6, cade-v11, "
-                 "cade-v12 and their -accurate cards: the models before), the path of a "
+                 "pair enlarged 1.5x, about twice the time), a shipped card's name (cade-v13, cade-v13-accurate, "
+                 "cade-v4; older models are retired, docs/research/models.md), the path of a "
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
 ]

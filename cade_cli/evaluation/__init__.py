@@ -5,6 +5,8 @@
   (:func:`cade_cli.matching.disparity.densify`) there.
 * :mod:`~cade_cli.evaluation.metrics`: EPE, bad-pixel rates, KITTI's D1, the invalid share, and the
   sparsification areas that say how well a matcher's confidence ranks its errors.
+* :mod:`~cade_cli.evaluation.regions`: the pixel sets scored besides all pixels (non-occluded,
+  depth edges, occluded), computed once per scene by the loop.
 * :mod:`~cade_cli.evaluation.loop`: one unit of work per scene (decoded once), with task
   subsets, degradations (:mod:`~cade_cli.evaluation.degradations`) and timing
   (:mod:`~cade_cli.evaluation.timing`) as options; used by ``cade benchmark``, the

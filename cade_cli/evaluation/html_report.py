@@ -23,7 +23,7 @@ from cade_cli.evaluation.album import TILE_WIDTH, SceneAlbum, map_key
 from cade_cli.evaluation.loop import BenchmarkRun
 from cade_cli.evaluation.records import Record
 from cade_cli.evaluation.report import (
-    confidence_table, confidence_title, left_out, pixel_sets, record_table, table, title,
+    PIXEL_SET_NAMES, confidence_table, confidence_title, left_out, pixel_sets, record_table, table, title,
 )
 from cade_cli.version import __version__
 
@@ -153,6 +153,7 @@ def legend(run: BenchmarkRun) -> str:
     }
     items = [(f"METHOD + {value}", meanings[value]) for value in run.config["preprocess"] if value in meanings]
     items += [(f"{name.upper()} (protocol)", get_protocol(name).summary) for name in run.config["protocols"]]
+    items += [(f"{name} (pixels)", f"{PIXEL_SET_NAMES[name]}.") for name in pixel_sets(run)]
     items += [("R>B and the like", "left band R of the left view matched against band B of the right view."),
               ("disparity pictures", "Turbo colours over the scene's ground-truth range; black = the matcher "
                                      "rejected the pixel (the map scored is filled there) or, in the ground "

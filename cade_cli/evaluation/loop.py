@@ -30,6 +30,7 @@ from cade_cli.evaluation.error_maps import save_maps
 from cade_cli.evaluation.metrics import METRIC_NAMES, score
 from cade_cli.evaluation.protocols import get_protocol, run_protocol
 from cade_cli.evaluation.records import Record
+from cade_cli.evaluation.regions import region_masks
 from cade_cli.evaluation.timing import Timing, use_threads
 from cade_cli.matching import MATCHERS, PREPROCESS_CHOICES
 
@@ -74,7 +75,7 @@ class BenchmarkRun:
             chosen = [r for r in self.records if tuple(getattr(r, name) for name in by) == key]
             if not chosen:
                 continue
-            means = {name: float(np.nanmean([r.scores.get(name, np.nan) for r in chosen]))
+            means = {name: _nanmean([r.scores.get(name, np.nan) for r in chosen])
                      for name in sorted({k for r in chosen for k in r.scores})}
             rows.append({
                 **dict(zip(by, key)), "scores": means, "maps": len({(r.scene, r.task) for r in chosen}),
@@ -87,6 +88,12 @@ class BenchmarkRun:
             {"config": self.config, "summary": self.summary(), "records": [r.to_dict() for r in self.records]},
             indent=1, allow_nan=True,
         )
+
+
+def _nanmean(values: Sequence[float]) -> float:
+    """Mean of the finite ``values``; NaN, without a warning, when none is (a region no scene has)."""
+    finite = [value for value in values if np.isfinite(value)]
+    return float(np.mean(finite)) if finite else float("nan")
 
 
 @dataclass(frozen=True)
@@ -128,12 +135,15 @@ def evaluate_scene(scene: Scene, plan: Plan, *, album: SceneAlbum | None = None,
     The search range is [0, ``scene.max_disp``] (inclusive). A matcher is called as
     ``matcher(left, right, max_disp=..., min_disp=0, preprocess=...)``; one with a
     ``prepare`` method taking the same arguments has it called, untimed, before each
-    call (the speed script's Pandora adapter checks its configuration there). Each scored
+    call (the speed script's Pandora adapter checks its configuration there). Every map is
+    scored on all pixels and on the scene's regions (:func:`region_masks`, computed once
+    here: non-occluded, depth edges, occluded, as far as the dataset allows). Each scored
     map's pictures (and its task's bands) are added to ``album`` when one is given.
     ``on_run`` is called with a description (scene, task, method + preprocessing) after
     every matcher run.
     """
     records = []
+    regions = region_masks(scene.disparity, nonocc=scene.nonocc)
     runs = [(protocol, method, preprocess, degradation) for protocol in plan.protocols for method in plan.matchers
             for preprocess in plan.preprocess[method] for degradation in plan.degradations]
     for protocol, method, preprocess, degradation in runs:
@@ -149,7 +159,7 @@ def evaluate_scene(scene: Scene, plan: Plan, *, album: SceneAlbum | None = None,
                 dataset=plan.dataset, resolution=scene.resolution, scene=scene.name, protocol=protocol,
                 method=method, preprocess=preprocess, task=result.name, seconds=result.seconds,
                 matcher_runs=len(results) - 1 if combined else 1,  # a combined map costs a run per task
-                scores=score(result.disparity, scene.disparity, nonocc=scene.nonocc, pred_valid=result.valid,
+                scores=score(result.disparity, scene.disparity, **regions, pred_valid=result.valid,
                              confidence=result.confidence),
                 degradation=degradation,
             )

@@ -11,7 +11,9 @@ Conventions (see ``shared/data/README.md``):
   :func:`cade_cli.matching.disparity.densify`, first (the protocols do that for every
   map they return), and a NaN left at a scored pixel is an error.
 * Regions: ``all`` = every pixel with finite GT; ``nonocc`` = those that the dataset's
-  occlusion mask marks non-occluded (MiddEval3: ``mask0nocc.png == 255``).
+  occlusion mask marks non-occluded (MiddEval3: ``mask0nocc.png == 255``); ``edge`` and
+  ``occ`` = depth-edge and occluded pixels, defined once in
+  :func:`cade_cli.evaluation.regions.region_masks`.
 * Confidence (:attr:`cade_cli.matching.DisparityResult.confidence`) is scored by its
   sparsification curve (:func:`sparsification_curve`): how fast the EPE of the kept pixels
   falls when the least confident ones are removed first. Its area (``auc_conf_all``) lies
@@ -28,8 +30,9 @@ from cade_cli.errors import CadeError
 BAD_THRESHOLDS: tuple[float, ...] = (1.0, 2.0, 3.0, 5.0)
 """Thresholds tau in pixels of the bad-pixel rates ``bad<tau>`` (|d - d_gt| > tau)."""
 
-REGIONS: tuple[str, ...] = ("all", "nonocc")
-"""Pixel sets scored by :func:`score`; ``nonocc`` only when an occlusion mask is given."""
+REGIONS: tuple[str, ...] = ("all", "nonocc", "edge", "occ")
+"""Pixel sets scored by :func:`score`; each but ``all`` only when its mask is given
+(:func:`cade_cli.evaluation.regions.region_masks`)."""
 
 
 def _bad_name(threshold: float) -> str:
@@ -45,7 +48,8 @@ METRIC_NAMES: tuple[str, ...] = tuple(
     for metric in ("epe", *(_bad_name(t) for t in BAD_THRESHOLDS), "d1")
 ) + ("invalid", "auc_conf_all", "auc_oracle_all")
 """Every key :func:`score` can return, in a stable order for table columns:
-``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, d1_all, epe_nonocc, ..., d1_nonocc, invalid``,
+``epe_all, bad1_all, bad2_all, bad3_all, bad5_all, d1_all, epe_nonocc, ..., d1_nonocc``, the same
+for ``edge`` and ``occ``, ``invalid``,
 then the sparsification areas of the confidence and of the oracle (px, all pixels with GT;
 only for predictions that carry a confidence)."""
 
@@ -205,6 +209,8 @@ def score(
     gt: np.ndarray,
     *,
     nonocc: np.ndarray | None = None,
+    edge: np.ndarray | None = None,
+    occ: np.ndarray | None = None,
     pred_valid: np.ndarray | None = None,
     confidence: np.ndarray | None = None,
 ) -> dict[str, float]:
@@ -215,6 +221,9 @@ def score(
             a matcher's map after :func:`cade_cli.matching.disparity.densify`.
         gt: (H, W) float GT disparity in pixels; NaN / inf = unknown (not scored).
         nonocc: (H, W) bool, True = non-occluded; adds the ``*_nonocc`` keys.
+        edge, occ: (H, W) bool, depth-edge and occluded pixels
+            (:func:`cade_cli.evaluation.regions.region_masks`); add the ``*_edge`` and
+            ``*_occ`` keys.
         pred_valid: (H, W) bool, the matcher's own validity (before the fill); None =
             every finite pixel valid. Only ``invalid`` depends on it.
         confidence: (H, W) float, the matcher's confidence (higher = more trusted); adds
@@ -222,11 +231,11 @@ def score(
             pixels with GT, px).
 
     Returns:
-        ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` and ``d1_all`` (%, :func:`d1_rate`), the same with ``_nonocc``
-        when ``nonocc`` is given, ``invalid``: percentage of *all* image pixels that
-        the matcher rejected (:func:`invalid_percentage`), and with ``confidence`` the two
-        sparsification areas. Keys follow :data:`METRIC_NAMES` order. Errors are NaN when
-        a region has no pixel with finite GT.
+        ``epe_all`` (px), ``bad1_all`` ... ``bad5_all`` and ``d1_all`` (%, :func:`d1_rate`), the same with
+        ``_nonocc``, ``_edge``, ``_occ`` for each of those masks given, ``invalid``: percentage of
+        *all* image pixels that the matcher rejected (:func:`invalid_percentage`), and with
+        ``confidence`` the two sparsification areas. Keys follow :data:`METRIC_NAMES` order.
+        Errors are NaN when a region has no pixel with finite GT.
 
     Raises:
         CadeError: shapes differ, a mask is not bool, ``pred`` is not finite at a pixel
@@ -236,8 +245,9 @@ def score(
     if pred_valid is None:
         pred_valid = np.ones(pred.shape, bool)
     regions = {"all": np.ones(pred.shape, bool)}
-    if nonocc is not None:
-        regions["nonocc"] = np.asarray(nonocc)
+    for region, mask in (("nonocc", nonocc), ("edge", edge), ("occ", occ)):
+        if mask is not None:
+            regions[region] = np.asarray(mask)
     results: dict[str, float] = {}
     for region, mask in regions.items():
         results[f"epe_{region}"] = end_point_error(pred, gt, mask)

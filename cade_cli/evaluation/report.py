@@ -2,7 +2,8 @@
 
 Rows are method + preprocessing, columns EPE / BMP3 / BMP5 per protocol (and KITTI's D1 for
 the KITTI sets, :data:`D1_DATASETS`), one table per
-pixel set ("all" pixels with ground truth, "nonocc" where the dataset has a mask), and
+pixel set ("all" pixels with ground truth; "nonocc", "edge" and "occ" as far as the dataset
+allows, :mod:`~cade_cli.evaluation.regions`), and
 one table of how well each matcher's confidence ranks its errors (:func:`confidence_table`).
 The same rows feed the terminal table, the Markdown report and the HTML report
 (:mod:`~cade_cli.evaluation.html_report`).
@@ -11,13 +12,22 @@ The same rows feed the terminal table, the Markdown report and the HTML report
 from __future__ import annotations
 
 from cade_cli.evaluation.loop import BenchmarkRun
+from cade_cli.evaluation.regions import EDGE_JUMP, EDGE_RADIUS
 
 COLUMNS: tuple[tuple[str, str], ...] = (("epe", "EPE"), ("bad3", "BMP3"), ("bad5", "BMP5"))
 D1_COLUMN: tuple[str, str] = ("d1", "D1")
 D1_DATASETS: tuple[str, ...] = ("kitti2012", "kitti2015")
 """Datasets whose tables add KITTI's own metric, D1 (:func:`cade_cli.evaluation.metrics.d1_rate`);
 every record carries it in the JSON."""
-PIXEL_SETS: tuple[str, ...] = ("all", "nonocc")
+PIXEL_SETS: tuple[str, ...] = ("all", "nonocc", "edge", "occ")
+PIXEL_SET_NAMES: dict[str, str] = {
+    "all": "all pixels with ground truth",
+    "nonocc": "non-occluded pixels with ground truth",
+    "edge": f"depth edges (pixels with ground truth within {EDGE_RADIUS:g} px of a jump > {EDGE_JUMP:g} px between "
+            "4-neighbours; non-occluded ones where the dataset has occlusion information)",
+    "occ": "occluded pixels with ground truth",
+}
+"""What each pixel set of :data:`PIXEL_SETS` is, for table headings."""
 
 
 def columns(run: BenchmarkRun) -> tuple[tuple[str, str], ...]:
@@ -26,8 +36,10 @@ def columns(run: BenchmarkRun) -> tuple[tuple[str, str], ...]:
 
 
 def pixel_sets(run: BenchmarkRun) -> list[str]:
-    """Pixel sets that have scores in ``run``, in a fixed order."""
-    present = {key.rsplit("_", 1)[-1] for record in run.records for key in record.scores}
+    """Pixel sets that have a score (not NaN) in ``run``, in a fixed order: a region no scene
+    has (no depth jump in any ground truth) gets no table."""
+    present = {key.rsplit("_", 1)[-1] for record in run.records for key, value in record.scores.items()
+               if value == value}
     return [name for name in PIXEL_SETS if name in present]
 
 
@@ -106,7 +118,7 @@ def title(run: BenchmarkRun, pixels: str) -> str:
     """Table heading naming the dataset, resolution, scene count and pixel set."""
     resolutions = sorted({record.resolution for record in run.records}) or ["?"]
     scenes = len(run.config["scenes"])
-    what = "all pixels with ground truth" if pixels == "all" else "non-occluded pixels with ground truth"
+    what = PIXEL_SET_NAMES[pixels]
     d1 = ", D1 % off by > 3 px and > 5 %" if D1_COLUMN in columns(run) else ""
     return (f"{run.config['dataset']} ({', '.join(resolutions)}, {scenes} scenes), {what}: "
             f"EPE px, BMP3/BMP5 % of pixels off by > 3/5 px{d1}")
@@ -114,11 +126,12 @@ def title(run: BenchmarkRun, pixels: str) -> str:
 
 def record_table(run: BenchmarkRun) -> tuple[list[str], list[list[str]]]:
     """(header, rows) of every record: scene, protocol, task, method + preprocess, its
-    EPE, BMP3 (and D1 for KITTI) on both pixel sets, invalid % and seconds."""
+    EPE, BMP3 (and D1 for KITTI) on each pixel set the run scored (:func:`pixel_sets`), invalid % and seconds."""
     metrics = [("epe", "EPE"), ("bad3", "BMP3")] + ([D1_COLUMN] if D1_COLUMN in columns(run) else [])
-    keys = [f"{metric}_{pixels}" for pixels in PIXEL_SETS for metric, _ in metrics]
+    present = pixel_sets(run)
+    keys = [f"{metric}_{pixels}" for pixels in present for metric, _ in metrics]
     header = ["scene", "protocol", "task", "method",
-              *(f"{label} {pixels}" for pixels in PIXEL_SETS for _, label in metrics), "invalid %", "s"]
+              *(f"{label} {pixels}" for pixels in present for _, label in metrics), "invalid %", "s"]
     rows = [[r.scene, r.protocol, r.task, f"{r.method} + {r.preprocess}",
              *(_fmt(r.scores.get(key)) for key in (*keys, "invalid")), f"{r.seconds:.2f}"] for r in run.records]
     return header, rows

@@ -1,20 +1,34 @@
-"""Writing a :class:`~cade_cli.registration.Registration` as one multi-band TIFF."""
+"""Writing a registration (a :class:`~cade_cli.registration.Registration`, or anything with its
+three bands: :class:`RegisteredBands`) as one multi-band TIFF, and its picture."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import tifffile
 
 from cade_cli.io.atomic import atomic_output
-from cade_cli.registration import Registration
+
+
+class RegisteredBands(Protocol):
+    """What this module reads of a registration: :class:`cade_cli.registration.Registration` has
+    it (io is below the registration, so it names the three bands instead of importing it)."""
+
+    reference: np.ndarray
+    """(H, W) float32 reference band."""
+    registered: np.ndarray
+    """(H, W) float32 moving band in reference coordinates, NaN where unknown."""
+    valid: np.ndarray
+    """(H, W) bool, True where the registration is trusted."""
+
 
 BAND_ORDER: tuple[str, ...] = ("reference", "registered", "valid")
 
 
-def write_registration(path: Path, registration: Registration) -> None:
+def write_registration(path: Path, registration: RegisteredBands) -> None:
     """Write ``registration`` to ``path`` atomically as a planar float32 TIFF.
 
     Bands, in order: the reference band, the registered (moving) band (NaN where unknown
@@ -40,7 +54,7 @@ has as much red as blue, so a tinted one never looks like one."""
 _TINT_WEIGHT = 0.55
 
 
-def registration_picture(registration: Registration, *, mode: str = "overlay") -> np.ndarray:
+def registration_picture(registration: RegisteredBands, *, mode: str = "overlay") -> np.ndarray:
     """The picture a person judges a registration by, with a legend drawn under it.
 
     Each band is histogram-equalised over the validly registered pixels (bands through different
@@ -107,7 +121,7 @@ def _stretched(band: np.ndarray, trusted: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_registration_picture(path: Path, registration: Registration, *, mode: str = "overlay") -> None:
+def write_registration_picture(path: Path, registration: RegisteredBands, *, mode: str = "overlay") -> None:
     """Write :func:`registration_picture` as a PNG at ``path``, all-or-nothing.
 
     Raises:

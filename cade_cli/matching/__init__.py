@@ -74,4 +74,17 @@ def get_matcher(name: str, *, model: str | None = None) -> Matcher:
     return replace(matcher, kernel=kernel, summary=f"{matcher.summary}; model {model}")
 
 
-__all__ = ["LEARNED_METHODS", "MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "densify", "get_matcher"]
+def method_fingerprint(name: str, *, model: str | None = None) -> dict:
+    """What of the method ``name``'s network decides its output, as a batch record stores it
+    (pairs and drone captures alike): for a learned method the sha256 of each network file its
+    model card names, and the card's non-default runtime settings
+    (:func:`cade_cli.model_card.network_fingerprint`); ``{}`` for a classical matcher."""
+    if name not in LEARNED_METHODS:
+        return {}
+    from cade_cli.model_card import network_fingerprint
+
+    return network_fingerprint(model)
+
+
+__all__ = ["LEARNED_METHODS", "MATCHERS", "PREPROCESS_CHOICES", "DisparityRange", "DisparityResult", "Matcher", "densify",
+           "get_matcher", "method_fingerprint"]

@@ -53,6 +53,19 @@ class DisparityRange:
             )
 
 
+MARGIN_SHARE = 0.15
+"""The margin added on each side of a range found at a coarse level: this share of the found span..."""
+MARGIN_COARSE_PX = 2
+"""...but at least this many coarse pixels (the coarse level's own uncertainty)."""
+
+
+def range_margin(low: float, high: float, factor: int) -> float:
+    """Margin (px) added to each side of the found range [low, high] (px) of a 1/``factor`` level:
+    ``--max-disp auto`` (:mod:`cade_cli.scale.range`), the tiles' own ranges and the pair check's
+    suggested range widen what they found by it."""
+    return max(MARGIN_SHARE * (high - low), MARGIN_COARSE_PX * factor)
+
+
 @dataclass(frozen=True)
 class DisparityResult:
     """Output of a matcher for the left (reference) view.

@@ -6,7 +6,7 @@ replaces that rule by a small per-pixel perceptron over features both candidates
 (their difference, the network's uncertainty, how much the neighbourhood agrees, how
 speckled each map is, how much texture the band has); it is fitted on real training
 scenes by ``python -m cade_cli.train chooser`` (the Accuracy II lever; the model card in
-models/README.md records what it measured).
+docs/research/refinement.md records what it measured).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ ROWS = 2048
 """The perceptron's products run on blocks of this many rows, the last one padded with zeros:
 OpenCV's ``gemm`` rounds a row by where it lies in the block and how many rows follow it (on
 an AMD EPYC VM, rows of a 10,000-row half came out otherwise than the same rows of the
-20,001-row whole: models/README.md, session 29), so a row's probability is reproducible only
+20,001-row whole: docs/research/refinement.md, 2026-11-28), so a row's probability is reproducible only
 at the same place in a block of the same size. :meth:`Chooser.take` splits its rows at a
 multiple of this."""
 

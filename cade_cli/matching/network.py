@@ -16,7 +16,7 @@ with (:mod:`cade_cli.model_card`). Around it :class:`NetworkStage`:
 
 The network's ``uncertainty`` output (spread of its disparity distribution, px) is not used
 for validity: rejecting pixels above 3 px and filling them from the background replaced
-many good estimates on thin and slanted structures (models/README.md, "Validity"). It
+many good estimates on thin and slanted structures (docs/research/refinement.md, 2026-11-22). It
 feeds the matcher's confidence instead (:func:`~cade_cli.matching.confidence.network_confidence`);
 :meth:`NetworkStage.estimate` returns it beside the disparity, resampled like it.
 
@@ -107,7 +107,7 @@ def _onnx_session(path: Path, sha256: str, threads: int):
     options.log_severity_level = 3
     options.intra_op_num_threads = threads
     # The matcher hands the cores to OpenCV (refinement) right after each run; spinning
-    # onnxruntime threads would keep them busy-waiting meanwhile (models/README.md, session 9).
+    # onnxruntime threads would keep them busy-waiting meanwhile (docs/research/speed.md, 2026-11-22).
     options.add_session_config_entry(ALLOW_SPINNING, "0")
     # No arena: it keeps the peak of every input shape it has seen, so tiles of many shapes
     # (cade_cli.scale.tiling) grew the process past its budget (docs/scale.md, "Tiling"); the

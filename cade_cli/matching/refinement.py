@@ -46,7 +46,7 @@ def correlation(left: np.ndarray, right: np.ndarray) -> float:
     """Pearson correlation of two images' pixels (0 where either is constant).
 
     Sums, not ``np.dot``: a BLAS call leaves OpenBLAS's threads busy-waiting for the next
-    one, on the cores onnxruntime and OpenCV need next (models/README.md, session 9)."""
+    one, on the cores onnxruntime and OpenCV need next (docs/research/speed.md, 2026-11-22)."""
     left, right = (image.astype(np.float64).ravel() for image in (left, right))
     left, right = left - left.mean(), right - right.mean()
     norm = np.sqrt(np.sum(left * left) * np.sum(right * right))
@@ -250,7 +250,7 @@ class RankSgbmRefinement:
                                              lambda: rank_transform(right, window=self.rank_window))
         # The left ranks are flipped, where the regions are found. Flipping the right ones
         # instead is not bit-identical in OpenCV's SGBM but no more accurate (contrast inverted
-        # everywhere: 5.87 px EPE against 5.86, models/README.md, session 11).
+        # everywhere: 5.87 px EPE against 5.86, docs/research/refinement.md, 2026-11-22).
         inverted = inverted_regions(left, right, disparity)
         if inverted.any():
             left_rank = np.where(inverted, np.uint8(top) - left_rank, left_rank)
@@ -258,7 +258,7 @@ class RankSgbmRefinement:
         scale = np.uint8(240 // top)
         left_rank, right_rank = left_rank * scale, right_rank * scale
         # disp12MaxDiff asks for OpenCV's left-right check, but it changed no score and no
-        # rejection count when tried off and at 0..2 px (models/README.md, session 10): no
+        # rejection count when tried off and at 0..2 px (docs/research/refinement.md, 2026-11-22): no
         # left-right check is claimed for this step.
         matcher = sgbm_matcher(0, span + 1, block=self.block, p1=self.p1, p2=self.p2, uniqueness=self.uniqueness,
                                prefilter_cap=15, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)

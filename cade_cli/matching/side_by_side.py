@@ -3,7 +3,7 @@ element-wise work, which releases the GIL) run side by side where OpenCV may use
 
 The CADE matcher's network and SGBM use every thread they are given; its other stages (the
 bands' transforms, their rank transforms, the chooser's features) each ran on one core while
-the other waited (models/README.md, session 26). Splitting such a stage into two independent
+the other waited (docs/research/speed.md, 2026-11-27). Splitting such a stage into two independent
 halves and running them here gives the same results, bit for bit, in about half the time.
 """
 

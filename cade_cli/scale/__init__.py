@@ -1,3 +1,3 @@
-"""Pairs of any size and any number: the disparity range estimated from a coarse match
-(:mod:`.range`), large pairs matched as tiles within a memory budget (:mod:`.tiling`), many pairs
-on worker processes or a Dask cluster (:mod:`.batch`)."""
+"""Pairs of any range and size: the disparity range estimated from a coarse match (:mod:`.range`),
+large pairs matched as tiles within a memory budget (:mod:`.tiling`). Many pairs in one run are
+:mod:`cade_cli.batch`."""

@@ -14,7 +14,7 @@ found by a margin:
    (peak-ratio confidence above its median; mismatches are mostly in the other half) is
    kept; its robust low and high percentiles (:data:`LOW_PERCENTILE`,
    :data:`HIGH_PERCENTILE`), scaled back to full resolution, are widened by a margin
-   (:func:`range_margin`) and rounded outwards.
+   (:func:`cade_cli.matching.base.range_margin`) and rounded outwards.
 
 The returned bounds are inclusive, like every range in the package, and fit the image
 (:meth:`~cade_cli.matching.DisparityRange.check_for_width`). The coverage of the result
@@ -31,6 +31,7 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult
+from cade_cli.matching.base import range_margin
 from cade_cli.stereo import estimate_disparity
 
 AUTO = "auto"
@@ -46,10 +47,6 @@ HIGH_PERCENTILE = 99.8
 margin: robust to the few mismatches that survive the matcher's checks."""
 CONFIDENT_QUANTILE = 0.5
 """Estimates whose confidence is below this quantile of the coarse confidences are left out."""
-MARGIN_SHARE = 0.15
-"""The margin added on each side: this share of the found span..."""
-MARGIN_COARSE_PX = 2
-"""...but at least this many coarse pixels (the coarse level's own uncertainty)."""
 MIN_VALID_SHARE = 0.02
 """Fewer valid coarse estimates than this share of the coarse pixels: no estimate (an
 empty, blank or unmatched pair), and the caller is asked for a range."""
@@ -87,11 +84,6 @@ def coarse_factor(width: int, *, coarse_width: int = COARSE_WIDTH) -> int:
     while width / factor > coarse_width:
         factor *= 2
     return factor
-
-
-def range_margin(low: float, high: float, factor: int) -> float:
-    """Margin (px) added to each side of the found range [low, high] (px) of a 1/``factor`` level."""
-    return max(MARGIN_SHARE * (high - low), MARGIN_COARSE_PX * factor)
 
 
 @dataclass(frozen=True)

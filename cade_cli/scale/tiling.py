@@ -19,7 +19,7 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    the window shifts inwards and keeps its width. For a learned method the window's first
    row and column are moved back to the network's sampling grid (:func:`~cade_cli.scale.windows.window_alignment`).
 3. **The ranges.** A tile's range is :func:`cade_cli.scale.range.confident_bounds` of the coarse
-   estimates over its core and collar, widened by :func:`cade_cli.scale.range.range_margin`, and
+   estimates over its core and collar, widened by :func:`cade_cli.matching.base.range_margin`, and
    kept within the range asked for; a tile with too few coarse estimates searches that
    whole range.
 4. **The size.** Starting from the whole image, a core whose window does not fit the
@@ -29,7 +29,7 @@ disparity range, seeded from a low-resolution pass over the whole pair:
    process's base and the whole-image arrays, :data:`~cade_cli.scale.memory.IMAGE_BYTES` per pixel, are set
    aside) is cut in four, down to :data:`MIN_CORE`; its quarters get their own, narrower
    seeded ranges. Tiles stay large where the depth varies little, and only the cores
-   that span a wide range pay for it (until session 16 one core side was chosen for the
+   that span a wide range pay for it (until 2026-11-23 one core side was chosen for the
    whole image, the one that the widest-ranged tile needed).
 5. **The match and the stitch.** Each window goes through
    :func:`cade_cli.stereo.estimate_disparity` (the one matching path); the core's part of
@@ -56,9 +56,9 @@ import numpy as np
 
 from cade_cli.errors import CadeError
 from cade_cli.matching import DisparityRange, DisparityResult, get_matcher
-from cade_cli.matching.base import check_pair
+from cade_cli.matching.base import check_pair, range_margin
 from cade_cli.scale.memory import BASE_BYTES, IMAGE_BYTES, tile_memory_bytes
-from cade_cli.scale.range import coarse_match, confident_bounds, range_margin
+from cade_cli.scale.range import coarse_match, confident_bounds
 from cade_cli.scale.windows import method_collar, search_reach, window_alignment
 from cade_cli.stereo import DEFAULT_METHOD, DEFAULT_PREPROCESS, MEMORY_LIMIT_BYTES, estimate_disparity
 
@@ -174,7 +174,7 @@ def seeded_tile(rows: tuple[int, int], columns: tuple[int, int], *, shape: tuple
     (:func:`seeded_range`; ``whole`` when there is none or it is too thin there)."""
     # Left of the range's maximum a pixel may have no match (x - d < 0), and its coarse
     # estimate is then a confident mistake; a core there also seeds from the columns up
-    # to that maximum to its right, where every match exists (on session 16's 24 MP
+    # to that maximum to its right, where every match exists (on 2026-11-23's 24 MP
     # pair two such cores got [0, 107] for a truth of 272..296 px).
     reach = collar + (max(whole.maximum, 0) if columns[0] < whole.maximum else 0)
     context = ((max(0, rows[0] - collar), rows[1] + collar), (max(0, columns[0] - collar), columns[1] + reach))

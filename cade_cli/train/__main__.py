@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from cade_cli.train.preview_command import preview
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 
 
@@ -75,14 +77,17 @@ def fit(
     training_mode: Annotated[str, typer.Option(help="cade (11 bands + the color agnostic transform; every shipped "
                                                "model), csdl (the 4 weighted-sum bands + noise, no transform) or "
                                                "pristine (the same R, G or B on both sides, no transform): the "
-                                               "training ablation, docs/results.md.")] = "cade",
+                                               "training ablation, docs/research/evaluation.md.")] = "cade",
     network_input: Annotated[str | None, typer.Option(help="With --training-mode cade: cade-floor (the color "
                                                       "agnostic transform with a contrast floor; a lever) "
                                                       "instead of the paper's transform.")] = None,
-    architecture: Annotated[str, typer.Option(help="cadenet (3D aggregation; cade-v1 ... v8) or cadenet2d (the "
-                                              "all-2D generation of Accuracy III).")] = "cadenet",
-    width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution.")] = 48,
-    features2d: Annotated[int, typer.Option(min=4, help="cadenet2d: channels of the 1/4-resolution features "
+    architecture: Annotated[str, typer.Option(help="cadenet (3D aggregation; cade-v1 ... v8), cadenet2d (the "
+                                              "all-2D generation of Accuracy III) or a design of the Accuracy V "
+                                              "bake-off: cadenet-convex, cadenet-iterative, cadenet-peak.")] = "cadenet",
+    width2d: Annotated[int, typer.Option(min=8, help="cadenet2d: the 2D U-Net's channels at 1/4 resolution "
+                                                     "(the bake-off's designs: their aggregation's).")] = 48,
+    features2d: Annotated[int, typer.Option(min=4, help="cadenet2d and the bake-off's designs: channels of the "
+                                            "1/4-resolution features "
                                             "(a multiple of the correlation's 4 groups).")] = 32,
     half_channels: Annotated[int, typer.Option(min=4, help="cadenet2d: channels of the 1/2-level refinement.")] = 16,
     full_refinement: Annotated[int, typer.Option(min=0, help="cadenet2d: channels of a full-resolution refinement "
@@ -100,6 +105,16 @@ def fit(
     shadows: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered backgrounds and grounds "
                                            "with shadows cast on them (shade keeping 3-30 % of the light over 20-70 % of the "
                                            "surface).")] = 0.0,
+    thin: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered scenes with 1-6 thin structures "
+                                        "(wires, poles, fronds 1-6 px wide) in front: sharp depth edges.")] = 0.0,
+    floating: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of rendered scenes made of 10-40 "
+                                            "floating objects over a real background (a texture photo or a "
+                                            "--real-dir scene's left view).")] = 0.0,
+    asymmetric: Annotated[float, typer.Option(min=0.0, max=1.0, help="Share of pairs with one view changed "
+                                              "(vignetting, defocus, gamma, contrast, blur, noise, JPEG).")] = 0.0,
+    edge_weight: Annotated[float, typer.Option(min=0.0, help="Loss weight W at depth edges: pixels within 3 px "
+                                               "of a ground-truth jump > 2 px weigh 1 + W in a weighted mean "
+                                               "(0: the plain mean).")] = 0.0,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
@@ -120,6 +135,9 @@ def fit(
     selfsup_weight: Annotated[float, typer.Option(min=0.0, help="Weight of the self-supervised loss.")] = 1.0,
     time_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, after this many seconds "
                                                       "in this process (resume with the same command).")] = None,
+    cpu_budget: Annotated[float | None, typer.Option(min=1.0, help="Stop, checkpointed, once the run has spent "
+                                                     "this many CPU-seconds in all (its cpu_s, over resumes): "
+                                                     "equal CPU-hours for a bake-off on a shared CPU.")] = None,
 ) -> None:
     """Train (or resume) a run."""
     if real_share > 0 and real_dir is None:
@@ -129,6 +147,9 @@ def fit(
     if selfsup_dir is not None and "msir-outdoor" in selfsup_dir.resolve().parts:
         raise typer.BadParameter("msir-outdoor is the shipping rule's real check: never trained on",
                                  param_hint="--selfsup-dir")
+    if floating > 0 and not textures and real_dir is None:
+        raise typer.BadParameter("--floating needs a real background: --textures (images) or --real-dir",
+                                 param_hint="--floating")
     if real_hold_out and real_dir is None:
         raise typer.BadParameter("--real-hold-out needs --real-dir", param_hint="--real-hold-out")
     from cade_cli.train.config import TrainConfig
@@ -157,11 +178,12 @@ def fit(
                          real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
                          real_hold_out=real_hold_out.split(",") if real_hold_out else [],
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
-                         second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget,
+                         second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget, cpu_budget_s=cpu_budget,
                          network_input=network_input, architecture=architecture, width2d=width2d, features2d=features2d,
                          half_channels=half_channels,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
+                         thin=thin, floating=floating, asymmetric=asymmetric, edge_weight=edge_weight,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule,
                          selfsup_dir=str(selfsup_dir) if selfsup_dir else None,
                          selfsup_cache=str(selfsup_cache or default_selfsup_cache(out)) if selfsup_dir else None,
@@ -360,6 +382,8 @@ def chooser(
         path.write_text(json.dumps(card, indent=2) + "\n")
         print(f"wrote the chooser into {path}")
 
+
+app.command()(preview)  # its options and body: cade_cli/train/preview_command.py
 
 if __name__ == "__main__":
     app()

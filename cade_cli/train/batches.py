@@ -9,11 +9,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from cade_cli.train.asymmetric import one_view_changed
 from cade_cli.train.config import TrainConfig
+from cade_cli.train.floating import render_floating
 from cade_cli.train.pairs import CadePair, network_input_of
 from cade_cli.train.pairs import training_pair as mode_pair
 from cade_cli.train.real import RealScenes
-from cade_cli.train.scenes import Misalignment, erased, render_scene
+from cade_cli.train.scenes import Misalignment, Photometric, StereoScene, erased, render_scene
 from cade_cli.train.selfsup_pairs import SelfSupPairs
 from cade_cli.train.textures import TexturePool
 
@@ -35,7 +37,7 @@ class GeneratedBatches(torch.utils.data.Dataset):
         if self.pool is None:
             self.pool = TexturePool([Path(folder) for folder in config.textures])
             self.real = (RealScenes(Path(config.real_dir), hold_out=config.real_hold_out)
-                         if config.real_share > 0 else None)
+                         if config.real_dir and (config.real_share > 0 or config.floating > 0) else None)
             self.selfsup = SelfSupPairs(Path(config.selfsup_cache)) if config.selfsup_share > 0 else None
         rng = np.random.default_rng([config.seed, step])
         height, width = crop_at(config, step)
@@ -83,33 +85,53 @@ def training_pair(rng: np.random.Generator, pool: TexturePool, real: RealScenes 
     second_left = config.feature_consistency > 0
     if selfsup is not None and rng.random() < config.selfsup_share:
         return selfsup_pair(selfsup, rng, config, height, width, second_left=second_left)
-    if real is not None and rng.random() < config.real_share:
+    if real is not None and config.real_share > 0 and rng.random() < config.real_share:
         scene = erased(real.draw(rng, height, width, limit=config.levels - 1), rng, config.eraser)
+        scene = one_view_changed(scene, rng, config.asymmetric)
         return mode_pair(scene, rng, config.training_mode, config.network_input, second_left=second_left)
     return generated_pair(rng, pool, height, width, config.levels, misaligned=config.misaligned,
                           mode=config.training_mode, kind=config.network_input, scene_range=config.scene_range,
                           misaligned_offset=config.misaligned_offset, eraser=config.eraser, second_left=second_left,
-                          ground=config.ground, shadows=config.shadows)
+                          ground=config.ground, shadows=config.shadows, thin=config.thin, floating=config.floating,
+                          asymmetric=config.asymmetric, real=real)
 
 
 def generated_pair(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
-                   misaligned: float = 0.0, mode: str = "cade", kind: str | None = None, scene_range: float = 1.0,
-                   misaligned_offset: float = 1.0, eraser: float = 0.0, second_left: bool = False,
-                   ground: float = 0.0, shadows: float = 0.0):
-    """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene;
-    disparities below ``levels - 1`` px (times a per-scene share drawn from
-    [``scene_range``, 1] when that is below 1); a share ``misaligned`` of the pairs has a
-    vertically misaligned right view (by up to ``misaligned_offset`` px), a share
-    ``eraser`` an erased patch (:func:`~cade_cli.train.scenes.erased`), a share ``ground`` a
-    ground under the objects (:func:`~cade_cli.train.scenes.ground_layer`), a share ``shadows`` of the
-    backgrounds and grounds shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`)."""
+                   mode: str = "cade", kind: str | None = None, second_left: bool = False, **levers):
+    """One training pair (``mode``: :data:`TRAINING_MODES`) of a freshly rendered scene
+    (:func:`generated_scene`, which ``levers`` go to)."""
+    scene = generated_scene(rng, pool, height, width, levels, **levers)
+    return mode_pair(scene, rng, mode, kind, second_left=second_left)
+
+
+def generated_scene(rng: np.random.Generator, pool: TexturePool, height: int, width: int, levels: int, *,
+                    misaligned: float = 0.0, scene_range: float = 1.0, misaligned_offset: float = 1.0,
+                    eraser: float = 0.0, ground: float = 0.0, shadows: float = 0.0, thin: float = 0.0,
+                    floating: float = 0.0, asymmetric: float = 0.0, real: RealScenes | None = None,
+                    photometric: Photometric = Photometric()) -> StereoScene:
+    """A freshly rendered RGB scene as training sees it before it becomes a pair: disparities
+    below ``levels - 1`` px (times a per-scene share drawn from [``scene_range``, 1] when that
+    is below 1); a share ``misaligned`` of the pairs has a vertically misaligned right view (by
+    up to ``misaligned_offset`` px), a share ``eraser`` an erased patch
+    (:func:`~cade_cli.train.scenes.erased`), a share ``ground`` a ground under the objects
+    (:func:`~cade_cli.train.scenes.ground_layer`), a share ``shadows`` of the backgrounds and
+    grounds shadows cast on them (:func:`~cade_cli.train.scenes.cast_shadow`), a share ``thin``
+    thin structures (:func:`~cade_cli.train.scenes.thin_layers`), a share ``floating`` is floating
+    objects over a real background instead (:func:`~cade_cli.train.floating.render_floating`:
+    photos from ``pool`` or ``real``'s left views), a share ``asymmetric`` one view changed
+    (:func:`~cade_cli.train.asymmetric.one_view_changed`). Every share of 0 draws nothing, so
+    earlier runs' scenes are unchanged."""
     limit = levels - 1
     if scene_range < 1:  # no draw otherwise: earlier runs' scenes unchanged
         limit *= float(np.exp(rng.uniform(np.log(scene_range), 0.0)))
-    scene = render_scene(rng, height, width, limit=limit, textures=pool,
-                         misalignment=Misalignment(share=misaligned, offset=misaligned_offset), ground=ground,
-                         shadows=shadows)
-    return mode_pair(erased(scene, rng, eraser), rng, mode, kind, second_left=second_left)
+    misalignment = Misalignment(share=misaligned, offset=misaligned_offset)
+    if floating > 0 and rng.random() < floating:
+        scene = render_floating(rng, height, width, limit=limit, textures=pool, real=real, photometric=photometric,
+                                misalignment=misalignment, thin=thin)
+    else:
+        scene = render_scene(rng, height, width, limit=limit, textures=pool, photometric=photometric,
+                             misalignment=misalignment, ground=ground, shadows=shadows, thin=thin)
+    return one_view_changed(erased(scene, rng, eraser), rng, asymmetric)
 
 
 def selfsup_pair(selfsup: SelfSupPairs, rng: np.random.Generator, config: TrainConfig, height: int, width: int, *,

@@ -60,7 +60,7 @@ class TrainConfig:
     cade-v1 … v4: 0."""
     real_hold_out: list[str] = field(default_factory=list)
     """Scenes of ``real_dir`` never trained on, for fitting the learned chooser on scenes the
-    network has not memorised (every run before session 24: none held out)."""
+    network has not memorised (every run before 2026-11-27: none held out)."""
     amp: bool = False
     """Mixed precision: the forward pass and the loss under bf16 autocast (the GPU recipe,
     docs/gpu-recipe.md); weights, gradients and the optimizer stay float32."""
@@ -96,6 +96,22 @@ class TrainConfig:
     shadows: float = 0.0
     """Share of rendered backgrounds and grounds with shadows cast on them
     (:func:`~cade_cli.train.scenes.cast_shadow`; objects keep their textures); 0: none, no draw."""
+    thin: float = 0.0
+    """Share of rendered scenes with 1-6 thin structures in front (:func:`~cade_cli.train.scenes.thin_layers`:
+    wires, poles, fronds 1-6 px wide at their own disparity: sharp depth edges); 0: none, no draw."""
+    floating: float = 0.0
+    """Share of rendered scenes made of 10-40 floating objects over a real background (a texture photo
+    or a real scene's left view on its own plane: :func:`~cade_cli.train.floating.render_floating`)
+    instead of the layered scene; needs texture images or ``real_dir``. 0: none, no draw."""
+    asymmetric: float = 0.0
+    """Share of pairs (rendered and real) with one view changed by a camera the other did not use
+    (:func:`~cade_cli.train.asymmetric.one_view_changed`: vignetting, defocus, gamma, contrast, blur,
+    noise, JPEG); the ground truth unchanged. 0: none, no draw."""
+    edge_weight: float = 0.0
+    """Supervised-loss weight W at depth edges: pixels within 3 px of a ground-truth jump of more
+    than 2 px weigh 1 + W, the others 1 (:func:`~cade_cli.train.fit.edge_weights`), and each loss term
+    is the weighted mean sum(w l) / sum(w): W moves the emphasis to the edges without changing the
+    loss's scale (an error everywhere costs what it did). 0: the plain mean, as before."""
     misaligned_offset: float = 1.0
     """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
     feature_consistency: float = 0.0
@@ -120,3 +136,7 @@ class TrainConfig:
     time_budget_s: float | None = None
     """Leave the loop, checkpointed, once this many seconds have passed in this process
     (the GPU recipe works in calls of at most 10 minutes, each resuming the last)."""
+    cpu_budget_s: float | None = None
+    """Leave the loop, checkpointed, once the run has spent this many CPU-seconds in all (its
+    ``cpu_s``, summed over resumes; with ``workers`` 0 that includes rendering the pairs): a
+    design bake-off on the CPU gives each design the same CPU-hours however busy the machine is."""

@@ -35,17 +35,19 @@ INPUT_TRANSFORMS = {"cade": "cade_cli.spectral.color_agnostic (window 3) on each
 """The card's ``input_transform`` text for each ``input`` (:data:`cade_cli.spectral.NETWORK_INPUTS`)."""
 
 
-CONTEXT_PX = {"cadenet": DEFAULT_CONTEXT_PX, "cadenet2d": 128}
+CONTEXT_PX = {"cadenet": DEFAULT_CONTEXT_PX, "cadenet2d": 128, "cadenet-convex": 128, "cadenet-iterative": 128,
+              "cadenet-peak": 128}
 """The card's ``context_px`` (a tiled window's collar, :func:`cade_cli.scale.windows.method_collar`):
 the 3D CadeNet moves its estimate by more than 0.01 px up to about 50 px away (:data:`DEFAULT_CONTEXT_PX`); CadeNet2D's U-Net
 down to 1/16 sees further (cade-v9 on a rendered 400x240 pair, 100 px cores: a 64 px collar left
 2.3 % of the pixels away from seams more than 0.1 px off the untiled map, up to 1.17 px; 128 px
-left 0.1 %, up to 0.22 px)."""
+left 0.1 %, up to 0.22 px). The bake-off's designs (``cadenet-convex``, ``-iterative``, ``-peak``) reach as far
+down (1/16, or 1/8 with dilated blocks) and take CadeNet2D's collar until one is measured."""
 
 OTHER_RANGES = (96, 160, 192, 224, 256)
 """Besides the trained range, each export also writes the same weights searching these
 ranges: wider ones keep wide scenes at full resolution instead of downscaling them, the
-narrower 96 runs spans up to 88 px a fifth faster (see models/README.md)."""
+narrower 96 runs spans up to 88 px a fifth faster (see docs/research/network-design.md)."""
 
 
 def load_checkpoint(path: Path) -> tuple[CadeNet, dict]:
@@ -101,6 +103,8 @@ def verify_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sizes=((
 
 def architecture_text(net, output: str) -> str:
     """The card's one-line ``architecture``."""
+    if hasattr(net, "describe"):  # the bake-off's designs say it themselves
+        return net.describe(output)
     if not isinstance(net, CadeNet):
         design = net.design
         return (f"CadeNet2D: 2D features (1/2, 1/4 res) -> normalised group-wise correlation ({design['groups']} "

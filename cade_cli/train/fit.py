@@ -17,6 +17,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
+from cade_cli.evaluation.regions import EDGE_JUMP, EDGE_RADIUS
 from cade_cli.train.batches import GeneratedBatches, parse_crop_schedule
 from cade_cli.train.checkpoints import restore, save_checkpoint
 from cade_cli.train.config import TrainConfig
@@ -28,21 +29,61 @@ from cade_cli.train.selfsup_pairs import build_cache
 from cade_cli.train.validation import evaluate, validation_sets
 
 
-def learning_rate(config: TrainConfig, step: int) -> float:
-    """Linear warm-up, then cosine decay to 5 % of ``lr`` at the last step."""
+def learning_rate(config: TrainConfig, step: int, cpu_s: float = 0.0) -> float:
+    """Linear warm-up, then cosine decay to 5 % of ``lr`` at the last step; with a CPU budget, at
+    the last step or when the budget is spent (``cpu_s`` of it so far), whichever comes first."""
     if step < config.warmup:
         return config.lr * (step + 1) / config.warmup
     progress = (step - config.warmup) / max(1, config.steps - config.warmup)
+    if config.cpu_budget_s is not None:
+        progress = max(progress, cpu_s / config.cpu_budget_s)
     return config.lr * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress))))
 
 
-def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, coarse_weight: float):
+def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, coarse_weight: float,
+               edge_weight: float = 0.0):
+    """The supervised loss (smooth L1 of the fine, coarse and half-level estimates over the pixels
+    with ground truth in range) and that mask. With ``edge_weight`` W > 0 each term is the mean
+    weighted by :func:`edge_weights` (1 + W at depth edges, 1 elsewhere, divided by the weights'
+    sum: the loss keeps the scale of a per-pixel mean); W = 0 computes the plain mean, as before."""
     mask = (target >= 0) & (target < levels)
-    fine = F.smooth_l1_loss(out["disparity"][mask], target[mask])
-    coarse = F.smooth_l1_loss(out["coarse"][mask], target[mask])
+    if edge_weight > 0:
+        weights = edge_weights(target, mask, edge_weight)[mask]
+        weights = weights / weights.sum().clamp(min=1e-6)
+
+        def term(estimate: torch.Tensor) -> torch.Tensor:
+            return (F.smooth_l1_loss(estimate[mask], target[mask], reduction="none") * weights).sum()
+    else:
+        def term(estimate: torch.Tensor) -> torch.Tensor:
+            return F.smooth_l1_loss(estimate[mask], target[mask])
+    fine = term(out["disparity"])
+    coarse = term(out["coarse"])
     if "half" in out:  # the second scale's estimate is supervised like the 1/4 level's
-        coarse = coarse + F.smooth_l1_loss(out["half"][mask], target[mask])
+        coarse = coarse + term(out["half"])
     return fine + coarse_weight * coarse, mask
+
+
+def edge_weights(target: torch.Tensor, valid: torch.Tensor, weight: float, *, jump: float = EDGE_JUMP,
+                 radius: int = EDGE_RADIUS) -> torch.Tensor:
+    """(B, 1, H, W) per-pixel loss weights: 1 + ``weight`` within ``radius`` px (Euclidean) of a jump of
+    more than ``jump`` px between two 4-neighbours that both have ground truth (``valid``), 1 elsewhere:
+    the benchmark's edge region (:mod:`cade_cli.evaluation.regions`, the same constants), in torch on
+    the batch's device, and without its restriction to non-occluded pixels (an occluded pixel beside
+    a jump is weighed up too). ``target``: (B, 1, H, W) disparity, px (anything where not ``valid``)."""
+    known = torch.where(valid, target, torch.zeros_like(target))
+    edge = torch.zeros_like(valid)
+    across = (known[..., :, 1:] - known[..., :, :-1]).abs() > jump
+    across &= valid[..., :, 1:] & valid[..., :, :-1]
+    down = (known[..., 1:, :] - known[..., :-1, :]).abs() > jump
+    down &= valid[..., 1:, :] & valid[..., :-1, :]
+    edge[..., :, 1:] |= across
+    edge[..., :, :-1] |= across
+    edge[..., 1:, :] |= down
+    edge[..., :-1, :] |= down
+    offsets = torch.arange(-radius, radius + 1, device=target.device, dtype=torch.float32)
+    disk = ((offsets[:, None] ** 2 + offsets[None, :] ** 2) <= radius * radius).float()[None, None]
+    near = F.conv2d(edge.float(), disk, padding=radius) > 0.5
+    return 1.0 + weight * near.float()
 
 
 def feature_consistency(net: torch.nn.Module, features: torch.Tensor, left_alt: torch.Tensor) -> torch.Tensor:
@@ -90,8 +131,9 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     running_loss, running_epe, seen = 0.0, 0.0, 0
     net.train()
     for step, batch in enumerate(batches, start=start):
+        rate = learning_rate(config, step, cpu_before + time.process_time() - cpu_started)
         for group in optimizer.param_groups:
-            group["lr"] = learning_rate(config, step)
+            group["lr"] = rate
         done = step + 1
         measured = optimise(net, optimizer, batch, config, device_type)
         if measured is not None:
@@ -102,7 +144,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         cpu = cpu_before + time.process_time() - cpu_started
         cpu_column = [f"{cpu:.0f}"] if with_cpu else []
         if done % 50 == 0:
-            writer.writerow([done, f"{elapsed:.0f}", f"{learning_rate(config, step):.2e}",
+            writer.writerow([done, f"{elapsed:.0f}", f"{rate:.2e}",
                              f"{running_loss / max(seen, 1):.4f}", f"{running_epe / max(seen, 1):.3f}", "train", "", "",
                              *cpu_column])
             log.flush()
@@ -117,12 +159,13 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
                 print(f"  validation {name}: EPE {epe:.2f} bad3 {bad3:.1f}%", flush=True)
             log.flush()
             net.train()
-        out_of_time = config.time_budget_s is not None and time.time() - started > config.time_budget_s
+        out_of_time = ((config.time_budget_s is not None and time.time() - started > config.time_budget_s)
+                       or (config.cpu_budget_s is not None and cpu > config.cpu_budget_s))
         if done % config.checkpoint_every == 0 or done in (config.steps, config.stop_after) or out_of_time:
             save_checkpoint(checkpoint_path, net, optimizer, done, elapsed, config, cpu)
         if out_of_time:
-            print(f"time budget of {config.time_budget_s:.0f} s spent: stopped after step {done} (checkpointed)",
-                  flush=True)
+            print(f"time budget spent ({time.time() - started:.0f} s in this process, {cpu:.0f} CPU-s in the run): "
+                  f"stopped after step {done} (checkpointed)", flush=True)
             break
     log.close()
     return checkpoint_path
@@ -149,7 +192,7 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
     with torch.autocast(device_type, dtype=torch.bfloat16, enabled=config.amp):
         out = net(batch["left"], batch["right"])
         out = {key: value.float() for key, value in out.items()}
-        loss, mask = loss_terms(out, batch["disparity"], config.levels, config.coarse_weight)
+        loss, mask = loss_terms(out, batch["disparity"], config.levels, config.coarse_weight, config.edge_weight)
         if config.feature_consistency > 0:
             loss = loss + config.feature_consistency * feature_consistency(net, out["features"], batch["left_alt"])
         chosen = batch["selfsup"] if "selfsup" in batch else None

@@ -1,6 +1,6 @@
 """The CADE stereo network: small enough to train and run on a CPU.
 
-Design (justified in models/README.md):
+Design (justified in docs/research/network-design.md):
   features   2D CNN, CADE band -> 32 channels at 1/4 resolution;
   cost       group-wise correlation (8 groups) over levels/4 disparities of the 1/4 level;
   aggregate  3D CNN with one stride-2 hourglass, 8-16 channels;
@@ -12,7 +12,7 @@ Design (justified in models/README.md):
   refine     full-resolution 2D residual refinement guided by the left band
              (dilated convolutions, 16 channels), for edges and sub-pixel detail.
              An export can leave it out (:class:`ExportWrapper`, ``output="coarse"``):
-             faster, less accurate on unseen data (models/README.md, session 8).
+             faster, less accurate on unseen data (docs/research/network-design.md, 2026-11-22).
 
 Inputs are color-agnostic bands (cade_cli.spectral.color_agnostic), (B, 1, H, W) with H
 and W multiples of :data:`DIVISOR`. Everything exports to ONNX with standard ops.
@@ -245,7 +245,7 @@ class Refinement(nn.Module):
         [0, 1]. A map reaching beyond ``scale`` (a range variant wider than the trained one)
         is first lowered by its excess over ``scale``: the residual then sees relative depth
         in the range it was trained on, instead of adding a bias that grows with disparity
-        (models/README.md)."""
+        (docs/research/network-design.md)."""
         excess = (disparity.amax(dim=(2, 3), keepdim=True) - scale).clamp_min(0.0)
         return disparity + self.net(torch.cat([(disparity - excess) / scale, left], dim=1))
 
@@ -264,14 +264,14 @@ class CadeNet(nn.Module):
         padding: the 2D convolutions' padding mode. ``"zeros"`` (cade-v4 on) lets
             onnxruntime fuse the padding into each convolution and keep its blocked
             layout; ``"replicate"`` (cade-v1 … v3) costs a Pad node and layout
-            reorders around each convolution (models/README.md).
+            reorders around each convolution (docs/research/network-design.md).
         entry_kernel: kernel size of the first 3D convolution, which mixes the
             correlation groups: 1 (cade-v4 on) or 3 (cade-v1 … v3; a quarter of the 3D
             multiply-adds).
         census: feed the aggregation a census cost volume of the input bands
             (:func:`~cade_cli.train.census.census_cost`) beside the learned correlation: a cost that no
             monotonic change of intensity alters, so identical on rendered and real data
-            (the Accuracy II lever; models/README.md says what it measured).
+            (the Accuracy II lever; docs/research/network-design.md says what it measured).
         aggregation: ``"3d"`` (every shipped model) or ``"separable"``
             (:data:`AGGREGATIONS`; the 2D-aggregation lever).
         second_scale: a 1/2-resolution stage (:class:`SecondScale`) between the 1/4

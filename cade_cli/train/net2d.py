@@ -2,7 +2,7 @@
 
 Every stage is a 2D convolution, which onnxruntime runs about 2.3x faster per
 multiply-add than a 3x3x3 Conv3D on this project's CPUs, and which int8 quantisation
-can speed up further (models/README.md, "Accuracy III"):
+can speed up further (docs/research/network-design.md, 2026-11-25):
 
   features   2D CNN, CADE band -> 16 channels at 1/2 and ``features`` at 1/4 resolution;
   cost       normalised group-wise correlation at 1/4 (each group of channels scaled to
@@ -39,7 +39,7 @@ over groups, in [-1, 1], times this. The U-Net's output is added to it and start
 so an untrained network is already a soft winner-takes-all matcher of its features, and the
 U-Net learns the aggregation as a residual: the 2D net has no built-in sliding along
 disparity, and without this prior it spent its first 700 steps predicting about the
-range's middle (train EPE 33 px at step 500; models/README.md, "Sessions 17–19")."""
+range's middle (train EPE 33 px at step 500; docs/research/network-design.md, 2026-11-25)."""
 
 
 class Residual2D(nn.Module):

@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from cade_cli.train.shapes import Shape, random_shape
+from cade_cli.train.shapes import Shape, random_shape, thin_structure
 from cade_cli.train.textures import TexturePool
 
 
@@ -139,7 +139,8 @@ class Layer:
         return cv2.remap(self.texture, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
 
 
-def _plane(rng: np.random.Generator, height: int, width: int, low: float, high: float) -> tuple[float, float, float]:
+def random_plane(rng: np.random.Generator, height: int, width: int, low: float,
+                 high: float) -> tuple[float, float, float]:
     """A plane whose disparity over the whole view stays inside [low, high]."""
     slope_scale = rng.choice([0.0, 0.02, 0.1, 0.3], p=[0.25, 0.3, 0.3, 0.15])
     b, c = rng.uniform(-slope_scale, slope_scale, size=2)
@@ -195,6 +196,7 @@ def render_scene(
     misalignment: Misalignment = NO_MISALIGNMENT,
     ground: float = 0.0,
     shadows: float = 0.0,
+    thin: float = 0.0,
 ) -> StereoScene:
     """Render one stereo pair with disparity in [0, limit).
 
@@ -212,12 +214,14 @@ def render_scene(
         shadows: share of the background and ground surfaces (the wide ones a shade falls
             across; objects keep their textures) with shadows cast on them
             (:func:`cast_shadow`); no random draw when 0, as for ``ground``.
+        thin: share of the scenes with thin structures in front (:func:`thin_layers`); no
+            random draw when 0, as for ``ground``.
     """
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)
     # Background mostly far (small disparity), sometimes anywhere; objects anywhere above 0.
     background_high = limit * (0.5 if rng.random() < 0.7 else 0.95)
-    layers = [Layer(_plane(rng, height, width, 0.0, background_high), None,
-                    *_textured(rng, textures, height, width, shadows=shadows))]
+    layers = [Layer(random_plane(rng, height, width, 0.0, background_high), None,
+                    *textured_surface(rng, textures, height, width, shadows=shadows))]
     corners = layers[0].disparity(np.array([0.0, width, 0.0, width]), np.array([0.0, 0.0, height, height]))
     farthest_background = float(corners.min())
     if ground > 0 and rng.random() < ground:
@@ -225,9 +229,19 @@ def render_scene(
                                    shadows=shadows))
     for _ in range(rng.integers(*objects)):
         low = farthest_background if rng.random() < 0.8 else 0.0
-        layers.append(Layer(_plane(rng, height, width, low, limit * 0.995),
-                            random_shape(rng, height, width), *_textured(rng, textures, height, width)))
+        layers.append(Layer(random_plane(rng, height, width, low, limit * 0.995),
+                            random_shape(rng, height, width), *textured_surface(rng, textures, height, width)))
+    if thin > 0 and rng.random() < thin:  # no draw when off: earlier runs' scenes unchanged
+        layers += thin_layers(rng, height, width, far=farthest_background, limit=limit, textures=textures)
+    return render_layers(rng, layers, photometric=photometric, misalignment=misalignment, x=x, y=y)
 
+
+def render_layers(rng: np.random.Generator, layers: list[Layer], *, photometric: Photometric,
+                  misalignment: Misalignment, x: np.ndarray, y: np.ndarray) -> StereoScene:
+    """Both views of ``layers`` (the nearest covering layer wins in each), the left view's
+    disparity and where it is seen in the right view, then each view through :func:`camera`.
+    ``x``, ``y``: the (H, W) float32 column and row grids of the left view."""
+    height, width = y.shape
     left, disparity, left_index = _composite(layers, [x] * len(layers), y)
     right_rows = misalignment.rows(rng, x, y)
     right, _, right_index = _composite(layers, [layer.source_column(x, right_rows) for layer in layers], right_rows)
@@ -245,6 +259,20 @@ def render_scene(
     )
 
 
+def thin_layers(rng: np.random.Generator, height: int, width: int, *, far: float, limit: float,
+                textures: TexturePool) -> list[Layer]:
+    """1-6 thin structures (:func:`~cade_cli.train.shapes.thin_structure`: wires, poles, fronds),
+    each a layer with its own plane between 15 % of the way from ``far`` (the background's
+    farthest disparity) to ``limit`` and ``limit``: well in front of the background, so
+    every one of them makes two depth edges a few px apart."""
+    layers = []
+    for _ in range(int(rng.integers(1, 7))):
+        low = far + 0.15 * (limit - far)
+        layers.append(Layer(random_plane(rng, height, width, low, limit * 0.995), thin_structure(rng, height, width),
+                            *textured_surface(rng, textures, height, width)))
+    return layers
+
+
 def ground_layer(rng: np.random.Generator, height: int, width: int, *, near: float, limit: float,
                  textures: TexturePool, shadows: float = 0.0) -> Layer:
     """A ground seen from a camera above it (a road, a floor, a field): covering the view below a
@@ -258,10 +286,10 @@ def ground_layer(rng: np.random.Generator, height: int, width: int, *, near: flo
     a, b = near - c * (horizon - tilt * width / 2), -c * tilt
     return Layer((float(a), float(b), float(c)),
                  lambda x, y: y >= horizon + tilt * (x - width / 2),
-                 *_textured(rng, textures, height, width, shadows=shadows))
+                 *textured_surface(rng, textures, height, width, shadows=shadows))
 
 
-def _textured(rng: np.random.Generator, textures: TexturePool, height: int, width: int, *,
+def textured_surface(rng: np.random.Generator, textures: TexturePool, height: int, width: int, *,
               shadows: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     texture = textures.draw(rng)
     kind = rng.random()

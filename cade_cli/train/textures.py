@@ -41,6 +41,13 @@ class TexturePool:
         for procedural textures (image files are used at their own size)."""
         if rng.random() < self.procedural_share:
             return procedural_texture(rng, size)
+        return self.photo(rng)
+
+    def photo(self, rng: np.random.Generator) -> np.ndarray:
+        """A (h, w, 3) float32 RGB image from the folders, in [0, 1], whole or (half the time) a
+        random crop of 40-100 % of each side; the folders must hold images (:attr:`files`)."""
+        if not self.files:
+            raise CadeError("no texture images to draw a photo from; give --textures a folder of images")
         path = self.files[rng.integers(len(self.files))]
         if path not in self._cache:
             image = cv2.imread(str(path), cv2.IMREAD_COLOR)

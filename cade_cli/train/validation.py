@@ -43,7 +43,7 @@ def validation_sets(config: TrainConfig, *, synthetic: bool = True) -> dict[str,
     by powers of 2 until the scene's range fits the model, each band given as the runtime
     gives it to a network of this mode (:func:`~cade_cli.spectral.network_input`). The ground
     truth stays at the scene's resolution: :func:`evaluate` scores a downscaled scene's map
-    brought back to it, in the scene's px, over all its pixels (until session 20 it scored it
+    brought back to it, in the scene's px, over all its pixels (until 2026-11-25 it scored it
     at the downscaled size, in those px: a 128-level network's Jadeplant, run at half size,
     counted an eighth of what a 192-level network's did). With ``data_dir`` holding ``msir-outdoor``, the
     set of that name: real visible/near-infrared pairs (:func:`real_cross_spectral_set`)."""

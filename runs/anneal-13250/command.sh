@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III shipping check (models/README.md, "Sessions 17–19"): an annealed copy of the campaign's
+# Accuracy III shipping check (docs/research/campaigns.md, 2026-11-25): an annealed copy of the campaign's
 # step-13,250 checkpoint (commit 908dcc6, runs/campaign-2d/last.pt, copied to runs/anneal-13250/init.pt):
 # 500 steps at lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30, the campaign's data
 # (with the ground), as cade-v9 was made from step 8,750.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III crop lever (models/README.md, "Session 21"): the shipping anneal runs/anneal-20000
+# Accuracy III crop lever (docs/research/campaigns.md, 2026-11-27): the shipping anneal runs/anneal-20000
 # with larger crops, 256x448 (1.87x the pixels of 192x320) instead of 192x320; the same init
 # (runs/anneal-20000/init.pt), steps, schedule, seed and data: 500 steps at lr 5e-4 after a 50-step
 # warm-up, cosine to 5 %, seed 30. Larger crops hold wider disparities and more context (the

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Accuracy III shipping check (models/README.md, "Session 21"): an annealed copy of the campaign's
-# step-23,000 checkpoint (runs/campaign-2d/last.pt of this session's commit of that step, copied to
+# Accuracy III shipping check (docs/research/campaigns.md, 2026-11-27): an annealed copy of the campaign's
+# step-23,000 checkpoint (runs/campaign-2d/last.pt of commit 0552ec3, copied to
 # runs/anneal-23000/init.pt): 500 steps at lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30,
 # the campaign's data and crops (192x320), as runs/anneal-13250 (cade-v11). Also the control of the
 # crop lever (runs/anneal-23000-crop256).

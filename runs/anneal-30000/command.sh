@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Accuracy III shipping check, session 22 (models/README.md): an annealed copy of the campaign's
-# step-30,000 checkpoint (runs/campaign-2d/last.pt of this session's commit of that step, copied to
+# Accuracy III shipping check, 2026-11-27 (docs/research/campaigns.md): an annealed copy of the campaign's
+# step-30,000 checkpoint (runs/campaign-2d/last.pt of commit 5dbca74, copied to
 # runs/anneal-30000/init.pt): 500 steps at lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30,
 # the campaign's data and crops (192x320): the recipe of runs/anneal-13250 (cade-v11), unchanged.
 # The recipe is runs/anneal.sh's. Checked by:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV shipping check of the campaign's second cycle, session 31 (models/README.md): an annealed copy of
+# Accuracy IV shipping check of the campaign's second cycle, 2026-11-28 (docs/research/campaigns.md): an annealed copy of
 # runs/fast192-2d-cycle2's step-10,000 checkpoint (copied to runs/anneal-cycle2-10000/init.pt), by the anneal recipe
 # (runs/anneal.sh) with --shadows 0.3 and the cycle's 256x448 crops, at two threads with the cycle stopped: the
 # same recipe as runs/anneal-cycle2-5000. Checked against cade-v13 by:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV, session 32 (models/README.md): runs/anneal-cycle3-crop256's anneal again with another seed (31: other
+# Accuracy IV, 2026-11-28 (docs/research/campaigns.md): runs/anneal-cycle3-crop256's anneal again with another seed (31: other
 # batches), from the same init (runs/fast192-2d-cycle3/last.pt, copied to runs/anneal-cycle3-crop256-seed31/init.pt),
 # at two threads alone on the CPU. It measures the anneal recipe's own spread on the one set that stopped
 # anneal-cycle3-crop256 (driving RGB BMP3 +1.8 % against a 1.0 % tolerance); fixed before any of its figures existed

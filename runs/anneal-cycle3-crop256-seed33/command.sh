@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV, session 32 (models/README.md): runs/anneal-cycle3-crop256's anneal again with seed 33, from the same init
+# Accuracy IV, 2026-11-28 (docs/research/campaigns.md): runs/anneal-cycle3-crop256's anneal again with seed 33, from the same init
 # (runs/fast192-2d-cycle3/last.pt, copied to runs/anneal-cycle3-crop256-seed33/init.pt), at two threads alone on the
 # CPU: seeds 30 and 31 gave Middlebury means 2 % apart, as much as the candidates' effects; seeds 32 and 33 make the
 # anneal's seed spread a four-draw measure (for the next rule's noise), decided after those two and before any

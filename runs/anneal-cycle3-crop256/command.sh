@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV, session 32 (models/README.md): the third cycle's end (runs/fast192-2d-cycle3/last.pt, step 11,500, trained
+# Accuracy IV, 2026-11-28 (docs/research/campaigns.md): the third cycle's end (runs/fast192-2d-cycle3/last.pt, step 11,500, trained
 # on the lent H200 at 192x320 crops; copied to runs/anneal-cycle3-crop256/init.pt) annealed by the anneal recipe
 # (runs/anneal.sh) with --shadows 0.3 and 256x448 crops, at two threads alone on the CPU: the small crops' cycle (best on
 # the real cross-spectral check, level on Middlebury) finished on the large crops (better on Middlebury 2014 in cycle 2).

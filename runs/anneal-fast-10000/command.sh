@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Accuracy III, session 21: how far the fast design is from shipping. An annealed copy of runs/fast-2d's
-# step-10,000 checkpoint (runs/fast-2d/last.pt in this session's commit of that step, copied to runs/anneal-fast-10000/init.pt;
+# Accuracy III, 2026-11-27: how far the fast design is from shipping. An annealed copy of runs/fast-2d's
+# step-10,000 checkpoint (runs/fast-2d/last.pt in commit 4c7b906, copied to runs/anneal-fast-10000/init.pt;
 # or runs/fast-2d/command.sh --stop-after 10000 from the step-5,000 commit), 500 steps as the campaign's anneals:
 # lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30, the fast run's data.
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/anneal-fast-10000 --architecture cadenet2d \

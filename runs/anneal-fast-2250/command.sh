@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III, session 20: how far the fast design is from shipping. An annealed copy of runs/fast-2d's
+# Accuracy III, 2026-11-25: how far the fast design is from shipping. An annealed copy of runs/fast-2d's
 # step-2,250 checkpoint (runs/fast-2d/last.pt then, copied to runs/anneal-fast-2250/init.pt; not committed:
 # re-run runs/fast-2d/command.sh --stop-after 2250 to remake it), 500 steps as the campaign's anneals:
 # lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30, the fast run's data.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Accuracy III shipping check of the fast design, session 22 (models/README.md): an annealed copy of
-# runs/fast192-2d's step-13,500 checkpoint (runs/fast192-2d/last.pt of this session's commit of that step,
+# Accuracy III shipping check of the fast design, 2026-11-27 (docs/research/campaigns.md): an annealed copy of
+# runs/fast192-2d's step-13,500 checkpoint (runs/fast192-2d/last.pt of commit bb2dc73,
 # copied to runs/anneal-fast192-13500/init.pt), 500 steps as the campaign's anneals: lr 5e-4 after a
 # 50-step warm-up, cosine to 5 %, seed 30, the fast run's data and crops (192x320).
 # The recipe is runs/anneal.sh's. Checked by:

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Accuracy III shipping check of the fast design, session 24 (models/README.md): an annealed copy of
-# runs/fast192-2d's step-29,750 checkpoint (runs/fast192-2d/last.pt of this session's commit of that step,
+# Accuracy III shipping check of the fast design, 2026-11-27 (docs/research/campaigns.md): an annealed copy of
+# runs/fast192-2d's step-29,750 checkpoint (runs/fast192-2d/last.pt of commit 5e188b7,
 # copied to runs/anneal-fast192-29750/init.pt), by the anneal recipe (runs/anneal.sh) with --shadows 0.3 as
 # the run has trained with since step 23,500. Checked by:
 #   benchmarks/candidate_check.sh runs/anneal-fast192-29750/last.pt f29750 /tmp/f29750

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV shipping check of the campaign as the fast tier, session 28 (models/README.md): an annealed copy of
+# Accuracy IV shipping check of the campaign as the fast tier, 2026-11-28 (docs/research/campaigns.md): an annealed copy of
 # runs/fast192-2d's step-48,750 checkpoint (copied to runs/anneal-fast192-48750/init.pt), by the anneal recipe
 # (runs/anneal.sh) with --shadows 0.3 as the run trains. Checked against cade-v12 by:
 #   REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \

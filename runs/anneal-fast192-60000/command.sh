@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV shipping check of the campaign as the fast tier, session 29 (models/README.md): an annealed copy of
+# Accuracy IV shipping check of the campaign as the fast tier, 2026-11-28 (docs/research/campaigns.md): an annealed copy of
 # runs/fast192-2d's step-60,000 checkpoint (copied to runs/anneal-fast192-60000/init.pt), by the anneal recipe
 # (runs/anneal.sh) with --shadows 0.3 as the run trains. Checked against cade-v13 (beside the check of step 60,000 itself, c60000) by:
 #   REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Accuracy III's control: today's design (cadenet, cade-v6's 3D aggregation, 192 levels) on the
-# campaign's data and schedule, for comparison at equal CPU time (models/README.md, "Accuracy III").
+# campaign's data and schedule, for comparison at equal CPU time (docs/research/network-design.md, 2026-11-25).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/control-3d --architecture cadenet \
   --levels 192 --textures ../shared/data/textures --data-dir ../shared/data \
   --real-dir ../shared/data/train-real --real-share 0.4 --network-input cade-floor --misaligned 0.3 --scene-range 0.25 \

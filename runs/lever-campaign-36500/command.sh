@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Session 26: the campaign (runs/fast192-2d) with the self-supervised lever, as it ran steps 36,500-37,000 from its own
-# checkpoint of step 36,500 (not kept: it was overwritten); dropped at 37,000 (models/README.md, "Session 26"). Logs only.
-# Accuracy III, the fast design at 192 levels (models/README.md, "Session 21"): runs/fast-2d (128 levels)
+# 2026-11-27: the campaign (runs/fast192-2d) with the self-supervised lever, as it ran steps 36,500-37,000 from its own
+# checkpoint of step 36,500 (not kept: it was overwritten); dropped at 37,000 (docs/research/training-data.md, 2026-11-27). Logs only.
+# Accuracy III, the fast design at 192 levels (docs/research/network-design.md, 2026-11-27): runs/fast-2d (128 levels)
 # lost 17-37 % EPE against cade-v11 through cade benchmark on the sets whose ranges its 128 levels run
 # at half size (Middlebury 2014, KITTI 2012, FlyingThings3D), at +17 % network time for 192 levels.
 # It starts from runs/fast-2d's last checkpoint (runs/fast-2d/last.pt, step 12,500, where that run
@@ -10,13 +10,16 @@
 # data and schedule: lr 1e-3 after a 500-step warm-up, cosine to 5 % at 60,000, seed 33, the ground.
 # Resume with the same command (it continues from runs/fast192-2d/last.pt). Beside the campaign on
 # this 2-core machine: OMP_NUM_THREADS=1 runs/fast192-2d/command.sh --threads 1.
-# --shadows 0.3 from the checkpoint of step 23,500 on (session 23: its ablation, runs/lever-shadows against
-# runs/anneal-42000, models/README.md); the steps before it ran without (this file's earlier versions in git).
+# --shadows 0.3 from the checkpoint of step 23,500 on (2026-11-27: its ablation, runs/lever-shadows against
+# runs/anneal-42000, docs/research/training-data.md); the steps before it ran without (this file's earlier versions in git).
 # The self-supervised lever (--selfsup-dir ../shared/data/micasense --selfsup-share 0.25 --selfsup-weight 2: a quarter
 # of the pairs cut from real multi-lens band pairs without ground truth, trained by gradient consistency) from the
-# checkpoint of step 36,500 on (session 26: its ablation, runs/lever-selfsup against runs/lever-selfsup-control and
+# checkpoint of step 36,500 on (2026-11-27: its ablation, runs/lever-selfsup against runs/lever-selfsup-control and
 # -control-seed31: msir-outdoor EPE 1.184 against 1.267 / 1.291, Middlebury inside the two controls' spread;
-# models/README.md). Its rectified pairs are cached in $CADE_CACHE_DIR/selfsup-pairs, else runs/fast192-2d/selfsup-pairs.
+# docs/research/training-data.md). Its rectified pairs are cached in $CADE_CACHE_DIR/selfsup-pairs, else runs/fast192-2d/selfsup-pairs.
+# runs/fast-2d/last.pt (step 12,500) left the tree on 2026-11-28, a finished run's checkpoint; bring it back before
+# running this (fit checks that --init exists, even to resume):
+#   git show 85fb266:runs/fast-2d/last.pt > runs/fast-2d/last.pt
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/fast192-2d --architecture cadenet2d \
   --init runs/fast-2d/last.pt --init-partial \
   --levels 192 --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 \

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III lever ablation (models/README.md, "Sessions 17–19"): 500 steps from the campaign's step-8,750
+# Accuracy III lever ablation (docs/research/training-data.md, 2026-11-25): 500 steps from the campaign's step-8,750
 # checkpoint, the campaign's data and schedule shape, with the cross-spectral feature-consistency loss at weight 0.1 (FCStereo-style).
 # Its control is runs/lever-ground-control (same init, seed, schedule).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/lever-consistency --architecture cadenet2d \

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III lever ablation (models/README.md, "Sessions 17–19"): the eraser on top of the ground; its control is
+# Accuracy III lever ablation (docs/research/training-data.md, 2026-11-25): the eraser on top of the ground; its control is
 # runs/anneal-10500 (same init: the campaign's step-10,500 checkpoint, commit f294b5d, copied to runs/anneal-10500/init.pt;
 # same 500 steps at lr 5e-4 after a 50-step warm-up, cosine to 5 %, seed 30, the ground), with --eraser 0.5 added.
 

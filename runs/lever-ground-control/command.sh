@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy III lever ablation (models/README.md, "Sessions 17–19"): 500 steps from the campaign's step-8,750
+# Accuracy III lever ablation (docs/research/training-data.md, 2026-11-25): 500 steps from the campaign's step-8,750
 # checkpoint, the campaign's data and schedule shape, without the lever (the control).
 exec nice -n 10 .venv/bin/python -m cade_cli.train fit --out runs/lever-ground-control --architecture cadenet2d \
   --init runs/lever-ground-init.pt --levels 192 --textures ../shared/data/textures --data-dir ../shared/data \

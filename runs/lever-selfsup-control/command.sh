@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV lever ablation, issue 38 item 5 (models/README.md, "Session 26"): the CONTROL of runs/lever-selfsup.
+# Accuracy IV lever ablation, issue 38 item 5 (docs/research/training-data.md, 2026-11-27): the CONTROL of runs/lever-selfsup.
 # 300 steps from the campaign's step-36,000 checkpoint (runs/fast192-2d, /work/cand/f36000.pt copied to
 # runs/lever-selfsup-control/init.pt) by the anneal recipe (runs/anneal.sh: lr 5e-4, warm-up 50, seed 30,
 # one thread) with the campaign's data flags (--shadows 0.3), no lever. Run as:

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 38 item 5 (models/README.md, "Session 26"): runs/lever-selfsup with the self-supervised loss weighted 20
+# Issue 38 item 5 (docs/research/training-data.md, 2026-11-27): runs/lever-selfsup with the self-supervised loss weighted 20
 # instead of 2 (at 2 the loss on real crops hardly moved in 300 steps), the rectified pairs from runs/lever-selfsup's
 # cache. Its control: runs/lever-selfsup-control (same seed 30, checkpoint, recipe, steps). Run as:
 #   OMP_NUM_THREADS=1 runs/lever-selfsup-w20/command.sh

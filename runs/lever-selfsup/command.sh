@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy IV lever ablation, issue 38 item 5 (models/README.md, "Session 26"): the self-supervised lever.
+# Accuracy IV lever ablation, issue 38 item 5 (docs/research/training-data.md, 2026-11-27): the self-supervised lever.
 # As runs/lever-selfsup-control (its control: same checkpoint, recipe, seed and steps), plus a quarter of
 # the training pairs cut from real cross-spectral band pairs without ground truth (../shared/data/micasense:
 # the RedEdge-M bench and field captures and the Sequoia tabletop, every band pair rectified so the parallax

@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Accuracy V (issue 51) item 2, the design bake-off begun 2026-11-28: every design trains from scratch on
+# the same data (the Accuracy IV campaign's recipe: procedural scenes with ground and shadows, 40 % real
+# training scenes, the contrast-floor transform, 30 % misaligned pairs), the same batches (seed 51), 192x320
+# crops, 192 levels, the same learning-rate schedule, for the same CPU budget: --cpu-budget 3600 (one
+# CPU-hour, the run's cpu_s summed over resumes; --workers 0, so rendering counts too), validated on
+# Middlebury every 500 steps. Equal CPU-hours, not equal steps: on this 2-vCPU VM a larger design takes
+# fewer steps for the same cost. The cosine runs to 5 % over the budget (fit.learning_rate), so every design
+# ends annealed (docs/research/network-design.md).
+# This run is cadenet-peak (cade_cli/train/net_peak.py): the control's features, volume and U-Net (the same
+# widths), then the peak-window expectation (one surface's disparity where a 1/4 pixel straddles a depth edge,
+# not the soft-argmin's mean of both), learned convex upsampling x4 (the mask from the left view) and a
+# full-resolution edge-aware residual refinement: aimed at the edges where census beats the network.
+#
+#   nohup nice runs/bakeoff-2026-11-28-peak/command.sh >> runs/bakeoff-2026-11-28-peak/stdout.log 2>&1 &
+# resumes where it stopped. On a lent GPU the bake-off runs instead at equal steps (docs/gpu-recipe.md).
+run=${RUN_DIR:-$(dirname "$0")}  # RUN_DIR: the same design elsewhere (the GPU bake-off, runs/gpu-bakeoff.sh)
+exec "$(dirname "$0")/../bakeoff.sh" "$run" --architecture cadenet-peak \
+  --features2d 16 --width2d 32 "$@"

@@ -1,0 +1,199 @@
+"""The Accuracy V bake-off's network designs (cadenet-convex, cadenet-iterative, cadenet-peak):
+shapes, learning, their export to ONNX (numbers and operators), their building blocks, and the
+shipped ``cade disparity`` running an exported one (skipped where torch is not installed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+onnx = pytest.importorskip("onnx")
+
+from cli_runner import run_cade, write_png16  # noqa: E402
+from synthetic import smooth_texture  # noqa: E402
+
+from cade_cli.io.disparity import read_disparity  # noqa: E402
+from cade_cli.train.config import TrainConfig  # noqa: E402
+from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
+from cade_cli.train.fit import loss_terms, train  # noqa: E402
+from cade_cli.train.net2d import normalised_correlation  # noqa: E402
+from cade_cli.train.net_iterative import CadeNetIterative  # noqa: E402
+from cade_cli.train.net_blocks import convex_upsample, convex_weights, expectation, hat_lookup  # noqa: E402
+from cade_cli.train.net_peak import peak_expectation  # noqa: E402
+from cade_cli.train.networks import ARCHITECTURES, network_of  # noqa: E402
+
+DESIGNS = ("cadenet-convex", "cadenet-iterative", "cadenet-peak")
+TINY = {"levels": 32, "features2d": 8, "width2d": 8}
+"""Test-sized designs: 32 levels, 8 feature channels, 8 aggregation channels."""
+
+
+def tiny(architecture: str) -> torch.nn.Module:
+    torch.manual_seed(0)
+    if architecture == "cadenet-iterative with 1/2 updates":  # the optional 1/2 level, off by default
+        return CadeNetIterative(TINY["levels"], features=8, width=8, steps2=1)
+    return network_of({"architecture": architecture, **TINY})
+
+
+def shifted_pair(rng: np.random.Generator, shape: tuple[int, int], shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """A seeded texture as the left view and the right view with right(x) = left(x + shift):
+    constant disparity ``shift`` everywhere (left(x) = right(x - shift))."""
+    height, width = shape
+    texture = smooth_texture(rng, (height, width + shift), sigma=1.0)
+    return texture[:, :width].copy(), texture[:, shift:shift + width].copy()
+
+
+def trained_looking(net: torch.nn.Module) -> torch.nn.Module:
+    """``net`` with non-trivial BatchNorm statistics and its zero-started exits (mask heads,
+    updates, aggregation exits, gates) drawn at random, so that every stage counts in a comparison."""
+    generator = torch.Generator().manual_seed(1)
+    with torch.no_grad():
+        for module in net.modules():
+            if isinstance(module, torch.nn.BatchNorm2d):
+                module.running_mean.normal_(0, 0.1, generator=generator)
+                module.running_var.uniform_(0.5, 1.5, generator=generator)
+        for parameter in net.parameters():
+            if parameter.dim() > 0 and not parameter.any():
+                parameter.normal_(0, 0.05, generator=generator)
+    return net.eval()
+
+
+@pytest.mark.parametrize("architecture", DESIGNS)
+def test_each_design_is_registered_and_gives_full_resolution_maps(architecture):
+    assert architecture in ARCHITECTURES
+    net = tiny(architecture)
+    assert net.design["architecture"] == architecture
+    height, width = 3 * net.divisor * 2, 5 * net.divisor
+    left, right = torch.rand(2, 2, 1, height, width)
+    for training in (True, False):
+        net.train(training)
+        out = net(left, right)
+        for key in ("disparity", "coarse", "uncertainty"):
+            assert out[key].shape == (2, 1, height, width), key
+            assert torch.isfinite(out[key]).all()
+    assert "disparity" not in net.eval()(left, right, refine=False)
+
+
+@pytest.mark.parametrize("architecture", DESIGNS)
+def test_a_few_steps_on_a_shifted_texture_lower_the_loss(architecture):
+    rng = np.random.default_rng(3)
+    pairs = [shifted_pair(rng, (32, 64), 6) for _ in range(2)]
+    left = torch.from_numpy(np.stack([p[0] for p in pairs]))[:, None]
+    right = torch.from_numpy(np.stack([p[1] for p in pairs]))[:, None]
+    target = torch.full_like(left, 6.0)
+    target[..., :8] = -1  # no match left of the shift: outside the loss's mask
+    net = tiny(architecture).train()
+    optimizer = torch.optim.Adam(net.parameters(), lr=2e-3)
+    losses = []
+    for _ in range(6):
+        loss, _ = loss_terms(net(left, right), target, 32, 0.5)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    assert np.isfinite(losses).all() and min(losses[-3:]) < 0.8 * losses[0], losses
+
+
+@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with 1/2 updates"))
+def test_the_export_agrees_with_torch_and_holds_no_grid_sample_or_data_gather(architecture, tmp_path: Path):
+    net = trained_looking(tiny(architecture))
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path, sample_size=(64, 96))
+    assert verify_onnx(net, path, sizes=((48, 64), (80, 208))) < 1e-3
+    graph = onnx.load(str(path)).graph
+    operators = {node.op_type for node in graph.node}
+    assert "GridSample" not in operators and not {"GatherElements", "GatherND"} & operators
+    made_by = {output: node.op_type for node in graph.node for output in node.output}
+    # a Gather may only read a shape (the exporter's size arithmetic), never a feature map
+    assert all(made_by.get(node.input[0]) == "Shape" for node in graph.node if node.op_type == "Gather")
+
+
+def test_the_convex_upsampler_keeps_a_constant_and_its_weights_sum_to_one():
+    generator = torch.Generator().manual_seed(0)
+    mask = torch.randn(2, 9 * 16, 5, 7, generator=generator) * 3
+    weights = convex_weights(mask, 4)
+    assert (weights >= 0).all() and torch.allclose(weights.sum(dim=1), torch.ones(2, 16, 5, 7), atol=1e-6)
+    constant = torch.full((2, 1, 5, 7), 3.25)
+    assert torch.allclose(convex_upsample(constant, mask, 4), torch.full((2, 1, 20, 28), 4 * 3.25), atol=1e-5)
+
+
+def test_the_convex_upsampler_takes_the_neighbour_its_mask_picks_so_an_edge_stays_sharp():
+    coarse = torch.zeros(1, 1, 4, 4)
+    coarse[..., 2:] = 10.0  # a depth edge between coarse columns 1 and 2
+    mask = torch.full((1, 9, 4, 4, 4), -30.0)  # (batch, neighbour, fine pixel i * 2 + j, row, column)
+    mask[:, 4] = 30.0  # every fine pixel takes its own coarse pixel (the centre, row-major index 4) ...
+    mask[:, 5, [1, 3]] = 60.0  # ... but the right half (j = 1) of each coarse pixel takes its right neighbour
+    fine = convex_upsample(coarse, mask.view(1, 36, 4, 4), 2)[0, 0] / 2
+    assert fine.shape == (8, 8)
+    assert torch.allclose(fine[:, :3], torch.zeros(8, 3), atol=1e-4)  # coarse column 1's left half stays 0 ...
+    assert torch.allclose(fine[:, 3:], torch.full((8, 5), 10.0), atol=1e-4)  # ... its right half takes 10: no blend
+
+
+def test_the_hat_lookup_equals_a_correlation_with_the_right_view_shifted_bilinearly():
+    generator = torch.Generator().manual_seed(2)
+    left, right = torch.randn(2, 1, 8, 6, 40, generator=generator)
+    levels, groups = 12, 2
+    volume = normalised_correlation(left, right, levels, groups)
+    disparity = torch.rand(1, 1, 6, 40, generator=generator) * 8 + 1  # 1 .. 9 px
+    got = hat_lookup(volume, disparity, (-1, 0, 1), groups).view(1, 3, groups, 6, 40)
+
+    def unit(x):
+        grouped = x.view(1, groups, 4, 6, 40)
+        return grouped / (grouped.pow(2).sum(dim=2, keepdim=True) + 1e-6).sqrt()
+
+    unit_left, unit_right = unit(left), unit(right)
+    columns = torch.arange(40).view(1, 1, 40)
+    for index, offset in enumerate((-1, 0, 1)):
+        position = columns - (disparity[:, 0] + offset)  # read right at x - d - k, linearly between columns
+        low = position.floor()
+        fraction = position - low
+        expected = 0
+        for column, weight in ((low, 1 - fraction), (low + 1, fraction)):
+            inside = (column >= 0) & (column <= columns) & (columns - column < levels)
+            at = column.clamp(0, 39).long().view(1, 1, 1, 6, 40).expand(1, groups, 4, 6, 40)
+            read = torch.gather(unit_right, 4, at)  # the slow, obvious reference: a gather
+            expected = expected + (weight * inside).unsqueeze(1) * (unit_left * read).sum(dim=2)
+        assert torch.allclose(got[:, index], expected, atol=1e-5)
+
+
+def test_the_lookups_and_the_upsampler_keep_float32_under_bf16_autocast():
+    generator = torch.Generator().manual_seed(5)
+    volume = torch.rand(1, 96 * 2, 4, 6, generator=generator).bfloat16()  # as a bf16 forward pass makes them
+    disparity = (70 + torch.rand(1, 1, 4, 6, generator=generator)).bfloat16()  # where bf16's step is 0.5 px
+    mask = torch.randn(1, 9 * 4, 4, 6, generator=generator).bfloat16()
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        low = (hat_lookup(volume, disparity, (-1, 0, 1), 2), convex_upsample(disparity, mask, 2))
+    exact = (hat_lookup(volume.float(), disparity.float(), (-1, 0, 1), 2),
+             convex_upsample(disparity.float(), mask.float(), 2))
+    for got, expected in zip(low, exact):
+        assert got.dtype == torch.float32 and torch.allclose(got, expected, atol=1e-5)
+
+
+def test_the_peak_expectation_picks_the_stronger_of_two_peaks_where_the_soft_argmin_averages():
+    logits = torch.full((1, 24, 1, 1), -20.0)
+    logits[0, 4], logits[0, 18], logits[0, 19] = 5.0, 5.5, 5.0  # background near 4, foreground near 18.5
+    mean, _ = expectation(logits)
+    peak = peak_expectation(logits, radius=2)
+    assert 8 < float(mean) < 16  # the soft-argmin: between the surfaces, on neither
+    assert abs(float(peak) - 18.38) < 0.05  # the foreground peak's own sub-pixel mean
+
+
+@pytest.mark.usefixtures("small_validation")
+@pytest.mark.parametrize("architecture", DESIGNS)
+def test_a_trained_exported_design_runs_in_the_shipped_cli(architecture, tmp_path: Path, capsys):
+    config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=2, batch=1, height=48, width=64, levels=32,
+                         workers=0, validate_every=100, architecture=architecture, width2d=8, features2d=8)
+    card = export_checkpoint(train(config), tmp_path / "tiny.onnx", tmp_path / "tiny.json")
+    assert card["design"]["architecture"] == architecture and card["divisor"] == network_of(
+        {"architecture": architecture, **TINY}).divisor
+    assert card["architecture"].startswith("CadeNet-") and card["onnx_vs_torch_max_abs_diff"] < 1e-3
+    rng = np.random.default_rng(4)
+    left, right = shifted_pair(rng, (50, 90), 5)  # not multiples of the divisor: padded, cropped
+    left_file, right_file = write_png16(tmp_path / "l.png", left), write_png16(tmp_path / "r.png", right)
+    code, _, stderr = run_cade(["disparity", left_file, right_file, "-o", tmp_path / "d.pfm", "--max-disp", 20,
+                                "--model", tmp_path / "tiny.json"], capsys)
+    assert code == 0, stderr
+    disparity = read_disparity(tmp_path / "d.pfm")
+    assert disparity.shape == (50, 90) and np.isfinite(disparity).any()
