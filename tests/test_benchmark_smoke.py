@@ -6,6 +6,8 @@ once for all of them."""
 
 from __future__ import annotations
 
+import json
+import os
 import re
 import runpy
 import shutil
@@ -24,6 +26,7 @@ SCRIPTS: dict[str, str] = {
     "brightness.py": "tests/test_benchmark.py (count_scene on a generated pair)",
     "cade_errors.py": "",
     "cade_stages.py": "",
+    "bakeoff_judge.sh": "here: its usage line, and a one-step checkpoint judged on one Middlebury scene",
     "candidate_check.sh": "here: its syntax and its usage line",
     "compare_records.py": "tests/test_benchmark.py (records compared on a generated dataset)",
     "cross_spectral.py": "",
@@ -88,6 +91,31 @@ def test_candidate_check_parses_and_asks_for_its_arguments():
     assert subprocess.run(["bash", "-n", str(script)], capture_output=True).returncode == 0
     run = subprocess.run(["bash", str(script)], capture_output=True, text=True, cwd=ROOT)
     assert run.returncode == 2 and run.stderr.strip().startswith("usage: benchmarks/candidate_check.sh CHECKPOINT NAME")
+
+
+@pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+def test_bakeoff_judge_scores_a_run_by_region_through_the_cli(tmp_path):
+    script = BENCHMARKS / "bakeoff_judge.sh"
+    run = subprocess.run(["bash", str(script)], capture_output=True, text=True, cwd=ROOT)
+    assert run.returncode == 2 and run.stderr.strip().startswith("usage: benchmarks/bakeoff_judge.sh RUN_DIR OUT_DIR")
+    data = ROOT.parent / "shared" / "data"
+    if not (data / "middlebury2014").is_dir():
+        pytest.skip("../shared/data is absent")
+    pytest.importorskip("torch")
+    from cade_cli.train.config import TrainConfig
+    from cade_cli.train.fit import train
+
+    train(TrainConfig(out=str(tmp_path / "run"), textures=[], steps=1, batch=1, height=64, width=128, levels=64,
+                      workers=0, validate_every=10, architecture="cadenet2d", features2d=8, width2d=8,
+                      half_channels=4))
+    judged = subprocess.run(["bash", str(script), str(tmp_path / "run"), str(tmp_path / "out")], cwd=ROOT,
+                            capture_output=True, text=True, env={**os.environ, "SETS": "middlebury14",
+                                                                 "SCENES": "ArtL", "OMP_NUM_THREADS": "1"})
+    assert judged.returncode == 0, judged.stderr
+    records = json.loads((tmp_path / "out" / "middlebury14.json").read_text())["records"]
+    methods = {record["method"] for record in records}
+    assert {"cade-network", "cade"} <= {method.split(":")[0] for method in methods}
+    assert all({"bad3_all", "bad3_nonocc", "bad3_edge", "bad3_occ"} <= set(record["scores"]) for record in records)
 
 
 def test_memory_matches_a_small_generated_pair(monkeypatch, capsys):
