@@ -27,6 +27,7 @@ SCRIPTS: dict[str, str] = {
     "cade_errors.py": "",
     "cade_stages.py": "",
     "bakeoff_judge.sh": "here: its usage line, and a one-step checkpoint judged on one Middlebury scene",
+    "bakeoff_table.py": "here: the table and plot of that judged checkpoint",
     "candidate_check.sh": "here: its syntax and its usage line",
     "compare_records.py": "tests/test_benchmark.py (records compared on a generated dataset)",
     "cross_spectral.py": "",
@@ -116,6 +117,18 @@ def test_bakeoff_judge_scores_a_run_by_region_through_the_cli(tmp_path):
     methods = {record["method"] for record in records}
     assert {"cade-network", "cade"} <= {method.split(":")[0] for method in methods}
     assert all({"bad3_all", "bad3_nonocc", "bad3_edge", "bad3_occ"} <= set(record["scores"]) for record in records)
+    # the bake-off table reads the judged folder: the whole matcher's summary means, by region, and the plot
+    summary = next(row["scores"] for row in json.loads((tmp_path / "out" / "middlebury14.json").read_text())["summary"]
+                   if row["method"].split(":")[0] == "cade")
+    table = runpy.run_path(str(BENCHMARKS / "bakeoff_table.py"))
+    assert table["main"]([str(tmp_path), "--markdown", str(tmp_path / "t.md"), "--speed", "out=1.5",
+                          "--plot", str(tmp_path / "p.png")]) == 0
+    text = (tmp_path / "t.md").read_text()
+    assert "### middlebury14, cade (" in text and "| run |" in text
+    row = [line for line in text.split("### middlebury14, cade (")[1].splitlines() if line.startswith("| out |")][0]
+    assert row == "| out | " + " | ".join(f"{summary[f'epe_{r}']:.2f} / {summary[f'bad3_{r}']:.1f}"
+                                          for r in ("all", "nonocc", "edge", "occ")) + " |"
+    assert (tmp_path / "p.png").stat().st_size > 1000
 
 
 def test_memory_matches_a_small_generated_pair(monkeypatch, capsys):
