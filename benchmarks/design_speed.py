@@ -26,11 +26,9 @@ from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
-import torch
 
-from cade_cli.train.export import INPUT_NAMES, export_onnx
-from cade_cli.train.model import parameter_count
-from cade_cli.train.networks import network_of
+# torch and the train package load in main only, so that --help answers at once; the inputs' names are read
+# from the exported graphs themselves (random_feeds)
 
 CAMPAIGN = {"architecture": "cadenet2d", "levels": 192, "slice_channels": 4}
 DESIGNS = {
@@ -79,6 +77,11 @@ BAKEOFF = {
 their ``runs/bakeoff-2026-11-28-<design>/command.sh``, against the control."""
 
 
+def random_feeds(session: ort.InferenceSession, rng: np.random.Generator, width: int, height: int) -> dict:
+    """One random band per input of an exported network, by the graph's own input names."""
+    return {node.name: rng.random((1, 1, height, width), dtype=np.float32) for node in session.get_inputs()}
+
+
 def int8_twin(path: Path, width: int, height: int) -> Path:
     """A static QDQ int8 twin (the export's settings, :mod:`cade_cli.train.quantize`), calibrated
     on random bands: enough for timing, not for accuracy."""
@@ -88,8 +91,8 @@ def int8_twin(path: Path, width: int, height: int) -> Path:
     class RandomBands:
         def __init__(self):
             rng = np.random.default_rng(1)
-            self.feeds = iter([{name: rng.random((1, 1, height, width), dtype=np.float32) for name in INPUT_NAMES}
-                               for _ in range(2)])
+            session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+            self.feeds = iter([random_feeds(session, rng, width, height) for _ in range(2)])
 
         def get_next(self):
             return next(self.feeds, None)
@@ -106,6 +109,7 @@ def gflops(net: torch.nn.Module, width: int, height: int) -> float:
     """Billions of floating-point operations of one eval forward pass at ``width`` x ``height``, as
     torch's FlopCounterMode counts them (convolutions and matrix products, 2 per multiply-add; not
     the element-wise correlation products or the soft-argmin)."""
+    import torch
     from torch.utils.flop_counter import FlopCounterMode
 
     band = torch.rand(1, 1, height, width)
@@ -122,7 +126,7 @@ def seconds_per_run(paths: list[Path], width: int, height: int, threads: int, ru
     options.intra_op_num_threads = threads
     sessions = [ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"]) for path in paths]
     rng = np.random.default_rng(0)
-    feeds = {name: rng.random((1, 1, height, width), dtype=np.float32) for name in INPUT_NAMES}
+    feeds = random_feeds(sessions[0], rng, width, height)
     for session in sessions:
         for _ in range(2):
             session.run(None, feeds)
@@ -148,6 +152,12 @@ def main() -> None:
     parser.add_argument("--keep", type=Path, help="write the exported designs here (designN.onnx, in table order), "
                         "e.g. for benchmarks/network_profile.py")
     args = parser.parse_args()
+    import torch
+
+    from cade_cli.train import export
+    from cade_cli.train.model import parameter_count
+    from cade_cli.train.networks import network_of
+
     width, height = (int(v) for v in args.size.lower().split("x"))
     torch.manual_seed(0)
     folder = args.keep or Path(tempfile.mkdtemp())
@@ -159,7 +169,7 @@ def main() -> None:
     for index, (_, config) in enumerate(designs):
         nets.append(network_of(config).eval())
         paths.append(folder / f"design{index}.onnx")
-        export_onnx(nets[-1], paths[-1])
+        export.export_onnx(nets[-1], paths[-1])
     seconds = seconds_per_run(paths, width, height, args.threads, args.runs)
     int8 = (seconds_per_run([int8_twin(path, width, height) for path in paths], width, height, args.threads, args.runs)
             if args.int8 else [])
