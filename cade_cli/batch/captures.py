@@ -19,7 +19,7 @@ from cade_cli.capture.register import DEFAULT_MATCH_SCALE
 from cade_cli.errors import CadeError
 from cade_cli.io.checksum import file_sha256
 from cade_cli.batch.job import peak_rss_mb
-from cade_cli.batch.pairs import RECORD_SUFFIX, worker_name
+from cade_cli.batch.pairs import RECORD_SUFFIX, outputs_verified, worker_name
 from cade_cli.batch.radiometry import capture_radiometry, check_quantity
 from cade_cli.scale.memory import BASE_BYTES
 from cade_cli.stereo import DEFAULT_METHOD
@@ -259,22 +259,8 @@ def _every_side_output(options: CaptureOptions) -> CaptureOptions:
 def is_finished(job: CaptureJob) -> bool:
     """Whether the capture's outputs are verified as made from its band files with its options:
     its record names the same files, sha256 and options, and lists exactly the outputs asked
-    for, each there with the sha256 listed."""
-    try:
-        record = json.loads(job.record.read_text())
-        expected = expected_record(job)
-    except (OSError, ValueError, CadeError):
-        return False
-    if not isinstance(record, dict) or any(record.get(key) != value for key, value in expected.items()):
-        return False
-    listed, wanted = record.get("outputs"), job.outputs()
-    if not isinstance(listed, dict) or set(listed) != set(wanted):
-        return False
-    try:
-        return all(isinstance(listed[role], dict) and listed[role].get("file") == path.name
-                   and file_sha256(path) == listed[role].get("sha256") for role, path in wanted.items())
-    except OSError:
-        return False
+    for, each there with the sha256 listed (:func:`~cade_cli.batch.pairs.outputs_verified`)."""
+    return outputs_verified(job.record, lambda: expected_record(job), job.outputs())
 
 
 def skipped_result(job: CaptureJob) -> CaptureResult:

@@ -12,7 +12,7 @@ import json
 import os
 import re
 import socket
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -357,31 +357,31 @@ def expected_record(pair: Pair) -> dict:
 
 
 def is_finished(pair: Pair) -> bool:
-    """Whether the pair's outputs are verified as made from its inputs with its options.
+    """Whether the pair's outputs are verified as made from its inputs with its options
+    (:func:`outputs_verified`). A missing or unreadable input is not finished (the run will report it)."""
+    return outputs_verified(pair.record, lambda: expected_record(pair), pair.outputs())
 
-    True only when its record parses, names the same input sha256 and options, lists
-    exactly the outputs the options ask for, and each of them is there with the sha256
-    listed. A missing or unreadable input is not finished (the run will report it).
-    """
+
+def outputs_verified(record_path: Path, expected: Callable[[], dict], wanted: dict[str, Path]) -> bool:
+    """Whether a batch job's record proves its outputs: the record parses, holds every item of
+    ``expected()`` (its inputs' sha256 and options; computed here, so an unreadable input is a
+    False), lists exactly the outputs ``wanted`` (role -> path), and each is there with the sha256
+    listed. Shared by the pairs' and the captures' batches."""
     try:
-        record = json.loads(pair.record.read_text())
-        expected = expected_record(pair)
+        record = json.loads(record_path.read_text())
+        expected_items = expected().items()
     except (OSError, ValueError, CadeError):
         return False
-    if not isinstance(record, dict) or any(record.get(key) != value for key, value in expected.items()):
+    if not isinstance(record, dict) or any(record.get(key) != value for key, value in expected_items):
         return False
     listed = record.get("outputs")
-    wanted = pair.outputs()
     if not isinstance(listed, dict) or set(listed) != set(wanted):
         return False
-    for role, path in wanted.items():
-        entry = listed[role]
-        try:
-            if not isinstance(entry, dict) or entry.get("file") != path.name or file_sha256(path) != entry.get("sha256"):
-                return False
-        except OSError:
-            return False
-    return True
+    try:
+        return all(isinstance(listed[role], dict) and listed[role].get("file") == path.name
+                   and file_sha256(path) == listed[role].get("sha256") for role, path in wanted.items())
+    except OSError:
+        return False
 
 
 def skipped_result(pair: Pair) -> PairResult:
