@@ -2,7 +2,10 @@
 # The shipping check of one trained checkpoint, end to end (models/README.md; Accuracy IV's rule):
 #
 #   benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]
+#   benchmarks/candidate_check.sh CARD.json NAME OUT_DIR [SHIPPED]
 #
+# Given a model card (a path ending in .json, whose name is NAME) instead of a checkpoint, steps 1 and 2 are
+# skipped: the card is judged as it is (a card that changes only the runtime, e.g. its edge filter).
 # 1. exports CHECKPOINT (a `fit` run's last.pt) as OUT_DIR/NAME.onnx + NAME.json, with the runtime's
 #    rank-SGBM refinement (REFINEMENT: another of `export --runtime-refinement`'s, e.g. rank-sgbm-two-scales);
 # 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
@@ -31,6 +34,10 @@ data=../shared/data
 hardware=${HARDWARE:-"2-vCPU development VM (AMD EPYC), torch 2.13.0+cpu, no GPU lent"}
 refinement=${REFINEMENT:-rank-sgbm} jobs=${JOBS:-1}
 mkdir -p "$out"
+card="$out/$name.json"
+if [[ "$checkpoint" == *.json ]]; then
+  card=$checkpoint
+else
 .venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" \
   --runtime-refinement "$refinement" --hardware "$hardware"
 chooser_options=()
@@ -38,13 +45,14 @@ chooser_options=()
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
   --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${chooser_options[@]}"
+fi
 runs=()
 for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
-  .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
+  .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$card" \
     --protocol cs,rgb --jobs "$jobs" --json "$out/$dataset.json" > "$out/$dataset.md"
   runs+=("$out/$dataset.json")
 done
-.venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$out/$name.json" \
+.venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$card" \
   --jobs "$jobs" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
 runs+=("$out/msir-outdoor.json")
 {

@@ -2,6 +2,8 @@
 way of registering the bands onto the reference band lines them up, without ground truth.
 
     python benchmarks/drone_alignment.py --data-dir ../shared/data/micasense --markdown table.md --pictures crops/
+    python benchmarks/drone_alignment.py --data-dir ../shared/data/micasense --only rededge-m-bench \
+        --models cade-v13,cade-v13-accurate,cade-v13-accurate-edges --markdown table.md --edge-crops crops/
 
 Every method reads the capture with the product's reader (cade_cli.capture.model.load_capture)
 and ends on the same grid, the reference band's raw pixels (the grid of register-capture's
@@ -14,11 +16,18 @@ cube), with the band's raw values resampled once, bilinearly, NaN where not seen
               fails from there, from a feature-match homography (marked homography*), then
               from register-capture's sparse plane (marked homography**);
   plane-only  register_capture(plane_only=True): `cade register-capture --plane-only`;
-  cade        register_capture(): `cade register-capture`, the default method.
+  cade        register_capture(): `cade register-capture`, the default method; with --models
+              M1,M2,... (cards' names or paths) instead one method per card, cade:M1, cade:M2 ...:
+              register_capture(model=M), `cade register-capture --model M`.
 Each is scored per band with cade_cli.capture.alignment (residual shift of gradient-image
 correlation in 64 px windows on one grid: median, 90th percentile, share > 1 px, coverage)
 twice: on every window the method could score, and on the windows every method could score
 ("common"). The times are wall and CPU (user + sys, all threads) of this process.
+
+--pictures: a crop of unaligned, homography and the cade method(s) where the homography leaves
+the largest residual. --edge-crops: per capture, a few crops where the reference band has strong
+edges and the cade methods' largest residual is largest (the rule: benchmarks/drone_edges.py),
+the reference beside each cade method's overlay; their places and residuals follow the tables.
 """
 
 from __future__ import annotations
@@ -41,14 +50,49 @@ from cade_cli.capture.model import Capture, load_capture
 from cade_cli.capture.register import read_raw, register_capture
 from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs
+from cade_cli.model_card import read_card
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # drone_edges.py beside it, however this script is run
+from drone_edges import edge_table, same_registration, write_edge_crops  # noqa: E402
 
 METHODS = ("unaligned", "rotations", "homography", "plane-only", "cade")
+"""The methods without --models; with it, "cade" gives way to one "cade:<card>" per model."""
 SEARCH = 96
 """px searched around each window: above the largest offsets of these cameras' raw bands (~50 px)
 and the parallax a homography leaves on the Sequoia capture (tens of px)."""
 CROP = 192
 """Side, px, of a picture's crop (written at full resolution)."""
 PICTURED = ("unaligned", "homography", "cade")
+EDGE_CROPS = 3
+"""Edge crops per capture (--edge-crops)."""
+
+
+def parse_models(text: str | None) -> dict[str, str] | None:
+    """``--models M1,M2,...`` as {method: model}: method ``cade:<card name>`` (a path's file
+    stem), each card read now (:func:`~cade_cli.model_card.read_card`) so an unknown one is
+    refused before any work; None for None (the one ``cade`` method, default model).
+
+    Raises:
+        CadeError: an empty list, a card given twice, or a card that cannot be read.
+    """
+    if text is None:
+        return None
+    models = [part.strip() for part in text.split(",") if part.strip()]
+    if not models:
+        raise CadeError(f"--models {text!r} names no model; give card names or paths, comma-separated "
+                        "(e.g. cade-v13,cade-v13-accurate)")
+    methods = {}
+    for model in models:
+        method = "cade:" + (Path(model).stem if model.endswith(".json") else model)
+        if method in methods:
+            raise CadeError(f"--models names {method.removeprefix('cade:')} twice")
+        read_card(model)
+        methods[method] = model
+    return methods
+
+
+def _cade(method: str) -> bool:
+    return method == "cade" or method.startswith("cade:")
 
 
 def find_captures(data_dir: Path) -> dict[str, Capture]:
@@ -95,19 +139,22 @@ def _profiled(work, top: int):
     return result
 
 
-def register(capture: Capture, *, profile: int = 0) -> dict[str, Registered]:
-    """Every method of :data:`METHODS` on one capture (``profile`` > 0: cade under cProfile,
-    its top ``profile`` stages to stderr)."""
+def register(capture: Capture, *, profile: int = 0, models: dict[str, str] | None = None) -> dict[str, Registered]:
+    """Every method of :data:`METHODS` on one capture, "cade" once per model of ``models``
+    (:func:`parse_models`) where given (``profile`` > 0: cade under cProfile, its top
+    ``profile`` stages to stderr)."""
     raw = read_raw(capture)
     results = {"unaligned": Registered({b.name: np.asarray(r, np.float32) for b, r in zip(capture.bands, raw)},
                                        0.0, 0.0)}
     for method, ecc in (("rotations", False), ("homography", True)):
         anchor, wall, cpu = _timed(lambda: register_anchor(capture, ecc=ecc, raw=raw))
         results[method] = Registered(anchor.bands, wall, cpu, anchor.failures, anchor.starts)
-    for method, plane_only in (("plane-only", True), ("cade", False)):
+    cade = [("cade", None)] if models is None else list(models.items())
+    for method, plane_only, model in (("plane-only", True, None), *((m, False, card) for m, card in cade)):
         # load_capture is timed too: register-capture reads the metadata for each capture
-        def work(plane_only=plane_only):
-            return register_capture(load_capture([b.path for b in capture.bands]), plane_only=plane_only)
+        def work(plane_only=plane_only, model=model):
+            return register_capture(load_capture([b.path for b in capture.bands]), plane_only=plane_only,
+                                    model=model)
         done, wall, cpu = _timed(lambda: _profiled(work, profile) if profile and not plane_only else work())
         results[method] = Registered({b.name: image for b, image in zip(capture.bands, done.bands)}, wall, cpu,
                                      notes={r.name: r.path for r in done.results})
@@ -120,6 +167,8 @@ class Scored:
 
     own: dict[str, Alignment]
     common: dict[str, Alignment]
+    shifts: dict[str, WindowShifts] = field(default_factory=dict)
+    """Per band, the windows' residual shifts behind ``own``."""
 
 
 def _only(shifts: WindowShifts, keep: np.ndarray) -> WindowShifts:
@@ -141,6 +190,7 @@ def score(capture: Capture, results: dict[str, Registered]) -> dict[str, Scored]
         common = np.logical_and.reduce([np.isfinite(shifts.shifts).all(axis=1) for shifts, _ in found.values()])
         for method, (shifts, kept) in found.items():
             scored[method].own[band.name] = summarise(shifts, kept)
+            scored[method].shifts[band.name] = shifts
             scored[method].common[band.name] = summarise(_only(shifts, common), kept)
     return scored
 
@@ -164,7 +214,7 @@ def summary_table(scores: dict[str, dict[str, Scored]], results: dict[str, dict[
               "common: median px", "common: p90 px", "common: > 1 px %", "common windows", "wall s", "CPU s"]
     lines = [_row(header), "|" + "---|" * len(header)]
     for capture, per_method in scores.items():
-        for method in METHODS:
+        for method in per_method:
             own, common = list(per_method[method].own.values()), list(per_method[method].common.values())
             result = results[capture][method]
             label = method + (f" ({len(result.failures)} bands failed)" if result.failures else "")
@@ -183,12 +233,12 @@ def band_table(scores: dict[str, dict[str, Scored]], results: dict[str, dict[str
               "common: median / p90 / > 1 px % / windows"]
     lines = [_row(header), "|" + "---|" * len(header)]
     for capture, per_method in scores.items():
-        for method in METHODS:
+        for method in per_method:
             result = results[capture][method]
             for band, a in per_method[method].own.items():
                 c = per_method[method].common[band]
                 shown = method + {"features": "*", "plane": "**"}.get(result.starts.get(band, ""), "")
-                shown += f" ({result.notes[band]})" if method == "cade" and band in result.notes else ""
+                shown += f" ({result.notes[band]})" if _cade(method) and band in result.notes else ""
                 lines.append(_row([capture, band, shown, _cell(a.median), _cell(a.p90),
                                    _cell(a.share_over_1px, 100, 1), _cell(a.coverage, 100, 1), str(a.windows),
                                    f"{_cell(c.median)} / {_cell(c.p90)} / {_cell(c.share_over_1px, 100, 1)} / "
@@ -235,24 +285,42 @@ def write_pictures(folder: Path, capture: Capture, name: str, results: dict[str,
     left = int(np.clip(column - CROP // 2, 0, width - CROP))
     crop = (slice(top, top + CROP), slice(left, left + CROP))
     written = []
-    for method in PICTURED:
+    for method in [m for m in results if m in PICTURED or m.startswith("cade:")]:
         if band not in results[method].bands:
             continue
-        path = folder / f"{name.replace('/', '-')}-{band.replace(' ', '')}-{method}.png"
+        path = folder / f"{name.replace('/', '-')}-{band.replace(' ', '')}-{method.replace(':', '-')}.png"
         cv2.imwrite(str(path), overlay(reference[crop], results[method].bands[band][crop]),
                     [cv2.IMWRITE_PNG_COMPRESSION, 9])
         written.append(path)
     return written
 
 
-def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profile: int = 0) -> str:
-    """Every capture under ``data_dir`` registered by every method and scored (the Markdown
-    tables are returned; each capture's times go to stderr as it ends); crops into ``pictures``."""
-    scores, results = {}, {}
+def edge_crops(folder: Path, capture: Capture, name: str, results: dict[str, Registered],
+               scored: dict[str, Scored], *, count: int = EDGE_CROPS):
+    """One capture's edge crops (benchmarks/drone_edges.py) of its cade method(s); None, and no
+    crop, where several were compared and every one registered the capture alike."""
+    methods = [m for m in results if _cade(m)]
+    if len(methods) > 1 and same_registration({m: results[m].bands for m in methods}):
+        return None
+    reference = results["unaligned"].bands[capture.reference_band.name]
+    shifts = {band: {m: scored[m].shifts[band] for m in methods}
+              for band in capture.names() if all(band in scored[m].shifts for m in methods)}
+    return write_edge_crops(folder, name, reference, {m: results[m].bands for m in methods}, shifts, overlay,
+                            count=count)
+
+
+def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profile: int = 0,
+        models: dict[str, str] | None = None, edges: Path | None = None) -> str:
+    """Every capture under ``data_dir`` (``only``: those whose name holds one of its
+    comma-separated texts) registered by every method (``models``: :func:`parse_models`) and
+    scored (the Markdown tables are returned; each capture's times go to stderr as it ends);
+    crops into ``pictures``, edge crops into ``edges``."""
+    scores, results, crops = {}, {}, {}
+    wanted = None if only is None else [text for text in only.split(",") if text]
     for name, capture in find_captures(data_dir).items():
-        if only is not None and only not in name:
+        if wanted is not None and not any(text in name for text in wanted):
             continue
-        results[name] = register(capture, profile=profile)
+        results[name] = register(capture, profile=profile, models=models)
         scores[name] = score(capture, results[name])
         times = ", ".join(f"{m} {r.seconds:.1f} s wall / {r.cpu:.1f} s CPU"
                           + (f" ({len(r.failures)} bands failed)" if r.failures else "")
@@ -260,7 +328,13 @@ def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profi
         print(f"{name}: {len(capture.bands)} bands; {times}", file=sys.stderr)
         if pictures is not None:
             write_pictures(pictures, capture, name, results[name])
-    return (summary_table(scores, results) + "\n\nPer band:\n\n" + band_table(scores, results))
+        if edges is not None:
+            crops[name] = edge_crops(edges, capture, name, results[name], scores[name])
+    text = summary_table(scores, results) + "\n\nPer band:\n\n" + band_table(scores, results)
+    if edges is not None:
+        methods = [m for m in next(iter(results.values()), {}) if _cade(m)]
+        text += "\n\nEdge crops (residual shift in the crop's centre window, px):\n\n" + edge_table(crops, methods)
+    return text
 
 
 def main() -> None:
@@ -268,16 +342,22 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, required=True, help="folder of the captures' band files")
     parser.add_argument("--markdown", type=Path, help="write the tables to this file")
     parser.add_argument("--pictures", type=Path, help="folder for the crops (before / homography / cade)")
-    parser.add_argument("--only", help="only the captures whose name holds this text")
+    parser.add_argument("--only", help="only the captures whose name holds this text (or one of these, "
+                        "comma-separated)")
+    parser.add_argument("--models", help="instead of cade with its default model, cade once per model: card "
+                        "names or paths, comma-separated (methods cade:<card>)")
+    parser.add_argument("--edge-crops", type=Path, metavar="FOLDER", help="folder for the edge crops: where the "
+                        "reference has strong edges and the cade method(s) leave the largest residual")
     parser.add_argument("--profile", type=int, default=0, metavar="N",
                         help="profile cade (cProfile, CPU time) and print its top N stages to stderr")
     arguments = parser.parse_args()
     try:
         if not arguments.data_dir.is_dir():
             raise CadeError(f"--data-dir {arguments.data_dir} is not a folder")
-        with atomic_outputs([arguments.markdown], folders=[arguments.pictures]) as staged:  # all or nothing
+        models = parse_models(arguments.models)
+        with atomic_outputs([arguments.markdown], folders=[arguments.pictures, arguments.edge_crops]) as staged:
             text = run(arguments.data_dir, pictures=staged.get(arguments.pictures), only=arguments.only,
-                       profile=arguments.profile)
+                       profile=arguments.profile, models=models, edges=staged.get(arguments.edge_crops))
             print(text)
             if arguments.markdown is not None:
                 staged[arguments.markdown].write_text(text + "\n")

@@ -11,8 +11,9 @@ Each variant is the same weights exported with another search width: ``levels`` 
 number of disparities the network's cost volume spans, so it searches
 0 .. ``levels`` - 1 px (inclusive bound ``levels - 1``). Only ``format``, ``divisor``,
 ``variants``, ``input``, the optional ``chooser`` (weights of the learned choice between the
-network and the refinement's match, written by ``python -m cade_cli.train chooser``) and
-``runtime_refinement`` are read back; the other fields document the model.
+network and the refinement's match, written by ``python -m cade_cli.train chooser``),
+``runtime_refinement``, ``context_px``, ``test_time_augmentation`` and ``runtime_edge_filter`` are
+read back; the other fields document the model.
 """
 
 from __future__ import annotations
@@ -30,14 +31,16 @@ CARD_FORMAT = 2
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v13"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate"}
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate-edges"}
 """``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v13 since
 2026-11-28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
 passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it the same day
 cade-v12 (step 40,250; passed against cade-v11), cade-v11 from 2026-11-25 to 2026-11-28, cade-v10 on
-2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate, the same network with a second pass on the pair enlarged
-1.5x fused in (``test_time_augmentation: ["upscaled-x1.5"]``), which passed the rule against
-cade-v12-accurate on every set (models/cade-v13-accurate.md); cade-v12-accurate before it, and
+2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate-edges since 2026-11-29, cade-v13's
+network with a second pass on the pair enlarged 1.5x fused in and the edge filter last
+(``runtime_edge_filter: weighted-median``), which passed the rule against cade-v13-accurate, better on every
+set but driving RGB's EPE (+0.9 %, inside its tolerance) (models/cade-v13-accurate-edges.md); before it
+cade-v13-accurate (2026-11-28, still shipped: the same without the filter), cade-v12-accurate, and
 cade-v11-accurate from 2026-11-27 to 2026-11-28."""
 
 
@@ -104,10 +107,17 @@ class ModelCard:
     (:meth:`cade_cli.matching.network.NetworkStage.estimate`); ``upscaled-x1.5`` and ``upscaled-x2`` match
     the pair enlarged (a second scale); ``mirrored`` checks the estimate against the right view's
     (:mod:`cade_cli.matching.augmentation`). Applied in the card's order. Empty: one pass."""
+    edge_filter: str = "none"
+    """What the ``cade`` matcher does last (:data:`cade_cli.matching.edges.EDGE_FILTERS`, the card's
+    ``runtime_edge_filter``): nothing (cards without the field), or ``weighted-median``: the map's
+    weighted median guided by the left band puts depth edges where the image has them
+    (:func:`cade_cli.matching.edges.snap_to_edges`)."""
 
 
 RUNTIME_REFINEMENTS = ("rank-sgbm", "rank-sgbm-network-range", "rank-sgbm-two-scales", "none")
 TEST_TIME_AUGMENTATIONS = ("vertical-flip", "upscaled-x1.5", "upscaled-x2", "mirrored")
+EDGE_FILTERS = ("none", "weighted-median")
+"""The values of a card's ``runtime_edge_filter`` (:attr:`ModelCard.edge_filter`)."""
 
 
 RETIRED_MODELS = {name: "85fb266" for name in
@@ -147,14 +157,16 @@ def read_card(model: str | Path = DEFAULT_MODEL, folder: Path | None = None) -> 
 def network_fingerprint(model: str | Path | None = None) -> dict:
     """What of the card of ``model`` (default: the shipped one) decides a learned method's output,
     as a batch record stores it, so that a changed card re-runs its pairs: the sha256 of every
-    network file it names, sorted; its test-time passes and its refinement where they are not the
-    defaults (left out otherwise, so records written before they existed still match)."""
+    network file it names, sorted; its test-time passes, its refinement and its edge filter where they
+    are not the defaults (left out otherwise, so records written before they existed still match)."""
     card = read_card(model or DEFAULT_MODEL)
     fingerprint: dict = {"model_sha256": sorted(variant.sha256 for variant in card.variants)}
     if card.test_time:
         fingerprint["test_time_augmentation"] = list(card.test_time)
     if card.refinement != ModelCard.refinement:
         fingerprint["runtime_refinement"] = card.refinement
+    if card.edge_filter != ModelCard.edge_filter:
+        fingerprint["runtime_edge_filter"] = card.edge_filter
     return fingerprint
 
 
@@ -189,7 +201,11 @@ def _parse_card(path: Path, mtime_ns: int, size: int) -> ModelCard:
         unknown = [name for name in test_time if name not in TEST_TIME_AUGMENTATIONS]
         if unknown:
             raise ValueError(f"test_time_augmentation {unknown[0]!r} is not one of {', '.join(TEST_TIME_AUGMENTATIONS)}")
-        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context, test_time)
+        edge_filter = card.get("runtime_edge_filter", "none")
+        if edge_filter not in EDGE_FILTERS:
+            raise ValueError(f"runtime_edge_filter {edge_filter!r} is not one of {', '.join(EDGE_FILTERS)}")
+        return ModelCard(name, variants, int(card["divisor"]), chooser, network_input, refinement, context, test_time,
+                         edge_filter)
     except (ValueError, KeyError, TypeError, AttributeError) as error:
         raise CadeError(f"model card {path} is malformed ({error}); re-export it with python -m cade_cli.train export")
 

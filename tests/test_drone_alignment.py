@@ -2,7 +2,10 @@
 absent): it finds the four captures and their bands with the product's reader as the data's
 README lists them; on the nearly planar field capture the lens rotations (the anchors' start,
 on the product's frame and grid) line the bands up far better than the raw files do; every
-method is scored on one grid, and on the windows every method could score."""
+method is scored on one grid, and on the windows every method could score. Without the data:
+the edge crops' rule (benchmarks/drone_edges.py) on windows of known residuals and on a
+synthetic band with a patch misregistered by a known shift, and --models (cards become
+cade:<card> methods; an unknown card is refused in one line before any work)."""
 
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import tifffile
@@ -85,3 +89,77 @@ def test_a_folder_without_band_files_is_refused_in_one_line(tmp_path):
     done = subprocess.run([sys.executable, SCRIPT, "--data-dir", tmp_path], capture_output=True, text=True)
     assert done.returncode != 0 and done.stderr.strip().count("\n") == 0
     assert "no band files" in done.stderr
+
+
+def _grid_shifts(magnitudes: np.ndarray, columns: int, window: int = 64):
+    """WindowShifts on a grid of ``columns`` windows a row, each shifted along x by its magnitude."""
+    from cade_cli.capture.alignment import WindowShifts
+    k = np.arange(len(magnitudes))
+    centres = np.stack([k // columns * window + 31.5, k % columns * window + 31.5], -1)
+    shifts = np.stack([magnitudes, np.where(np.isfinite(magnitudes), 0.0, np.nan)], -1)
+    return WindowShifts(centres, shifts, np.ones(len(magnitudes)), np.zeros(len(magnitudes), bool))
+
+
+def test_edge_crops_go_where_the_worst_method_is_worst_on_strong_edges(drone_alignment):
+    from drone_edges import pick_edge_windows
+    columns = 10  # a 6 x 10 grid of 64 px windows
+    rng = np.random.default_rng(7)
+    edge = rng.uniform(1.0, 2.0, 60)
+    edge[:30] = rng.uniform(0.0, 0.5, 30)  # the top half of the image has weak edges
+    a, b = rng.uniform(0.0, 1.0, (2, 60))
+    a[5], b[5] = 40.0, 0.1  # the largest residual of all, but on weak edges: never picked
+    a[44], b[44] = 0.2, 9.0  # the worst strong-edge window, by method b
+    a[45], b[45] = 8.0, 0.3  # next to it: its crop would overlap the first's, skipped
+    a[57], b[57] = 7.0, np.nan  # scored by one method only: its residual counts
+    a[33], b[33] = np.nan, np.nan  # scored by none: left out whatever its edges
+    edge[33] = 5.0
+    shifts = {"NIR": {"cade:a": _grid_shifts(a, columns), "cade:b": _grid_shifts(b, columns)}}
+    picked = pick_edge_windows(edge, shifts, count=3, crop=176)
+    assert [(p.row, p.column) for p in picked[:2]] == [(288, 288), (352, 480)]  # windows 44, then 57
+    assert picked[0].residuals == pytest.approx({"cade:a": 0.2, "cade:b": 9.0})
+    assert len(picked) == 3 and picked[2].edge >= 1.0  # the third: some other strong-edge window
+    for p in picked:  # no two crops overlap
+        others = [q for q in picked if q is not p]
+        assert all(abs(p.row - q.row) >= 176 or abs(p.column - q.column) >= 176 for q in others)
+    again = pick_edge_windows(edge, shifts, count=3, crop=176)  # deterministic
+    assert [(p.band, p.row, p.column) for p in again] == [(p.band, p.row, p.column) for p in picked]
+
+
+def test_edge_crops_find_a_displaced_patch_and_picture_every_method(drone_alignment, tmp_path):
+    import drone_edges
+    from cade_cli.capture.alignment import window_shifts
+    rng = np.random.default_rng(11)
+    reference = cv2.GaussianBlur(rng.random((384, 512)).astype(np.float32), (0, 0), 2.0)
+    reference[192:] = 0.5 + 2.0 * (reference[192:] - 0.5)  # the lower half's edges are the strong ones
+    good = reference.copy()
+    bad = reference.copy()
+    patch = (slice(192, 320), slice(320, 448))  # four 64 px windows of the grid, misregistered by 4 px
+    bad[patch] = np.roll(reference, (0, 4), axis=(0, 1))[patch]
+    registered = {"cade:good": {"NIR": good}, "cade:bad": {"NIR": bad}}
+    shifts = {"NIR": {m: window_shifts(reference, images["NIR"], search=16) for m, images in registered.items()}}
+    written = drone_alignment.write_edge_crops(tmp_path, "bench/IMG_1", reference, registered, shifts,
+                                               drone_alignment.overlay, count=2)
+    path, first = written[0]
+    assert first.row in (224, 288) and first.column in (352, 416)
+    assert first.residuals["cade:bad"] == pytest.approx(4.0, abs=0.3) and first.residuals["cade:good"] < 0.1
+    picture = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert path.name == "bench-IMG_1-edges-1-NIR.png" and picture.dtype == np.uint8
+    crop, label = drone_edges.EDGE_CROP, drone_edges.LABEL
+    assert picture.shape == (crop + label, 3 * crop + 2 * 2, 3)  # reference, then one overlay per method
+    table = drone_alignment.edge_table({"bench/IMG_1": written}, list(registered))
+    assert "| bench/IMG_1 | bench-IMG_1-edges-1-NIR.png | NIR |" in table
+    holed = np.where(good > np.quantile(good, 0.9), np.float32(np.nan), good)  # NaN equals NaN
+    alike = {"cade:a": {"NIR": holed}, "cade:b": {"NIR": holed.copy()}}
+    assert drone_edges.same_registration(alike) and not drone_edges.same_registration(registered)
+
+
+def test_models_become_cade_methods_and_an_unknown_card_is_refused_in_one_line(drone_alignment, tmp_path):
+    repo_models = Path(__file__).resolve().parents[1] / "models"
+    assert drone_alignment.parse_models(None) is None
+    assert drone_alignment.parse_models(f"cade-v13, {repo_models / 'cade-v13-accurate.json'}") == {
+        "cade:cade-v13": "cade-v13", "cade:cade-v13-accurate": str(repo_models / "cade-v13-accurate.json")}
+    markdown = tmp_path / "table.md"
+    done = subprocess.run([sys.executable, SCRIPT, "--data-dir", tmp_path, "--models", "cade-v13,no-such-card",
+                           "--markdown", markdown], capture_output=True, text=True)
+    assert done.returncode != 0 and done.stderr.strip().count("\n") == 0
+    assert "no-such-card" in done.stderr and not markdown.exists()

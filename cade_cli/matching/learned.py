@@ -8,7 +8,9 @@ right view, or its match leaves the image) -> refinement
 (:class:`~cade_cli.matching.refinement.RankSgbmRefinement` of the raw bands, at the
 visible pixels only; where SGBM's match and the network disagree, the card's learned
 :class:`~cade_cli.matching.chooser.Chooser` decides which to keep, or without one the
-32 px agreement rule) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
+32 px agreement rule) -> edges (where the card asks for it,
+:func:`~cade_cli.matching.edges.snap_to_edges`: the map's weighted median guided by the left band
+moves depth edges to the image's) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
 the network's uncertainty and whether the refinement's SGBM match agreed with it) -> the
 unfilled result (NaN where invalid; filling is the caller's stage,
 :func:`~cade_cli.matching.disparity.densify`).
@@ -24,6 +26,7 @@ from cade_cli.matching.base import DisparityRange, DisparityResult
 from cade_cli.matching.chooser import Chooser
 from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
+from cade_cli.matching.edges import snap_to_edges
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 from cade_cli.model_card import ModelCard
@@ -50,7 +53,7 @@ class LearnedPipeline:
     Attributes:
         network: the network stage (which model, from which folder).
         refinement: the full-resolution refinement; None returns the network's map, and so
-            does a card whose ``runtime_refinement`` is ``none``.
+            does a card whose ``runtime_refinement`` is ``none`` (neither runs the card's edge filter).
         confidence: compute the confidence (False: ``DisparityResult.confidence`` is
             None; the disparity and validity are the same either way).
     """
@@ -79,5 +82,7 @@ class LearnedPipeline:
             refined, taken = refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)
             agreement = np.where(taken, np.abs(refined - network), np.float32(np.inf))
+            if card.edge_filter == "weighted-median":
+                disparity = snap_to_edges(disparity, left)
         confidence = network_confidence(uncertainty, valid, agreement=agreement) if self.confidence else None
         return DisparityResult(np.where(valid, disparity, np.float32(np.nan)), valid, confidence)
