@@ -165,3 +165,20 @@ def test_the_matcher_filters_its_map_last_with_the_left_band_when_the_card_asks(
     network_alone = LearnedPipeline(network=NetworkStage(model=str(asks)), refinement=None)
     network_alone(pair.left, pair.right, DisparityRange(0, 40))
     assert len(calls) == 1  # the network alone (method cade-network) is not filtered
+
+
+def test_the_map_does_not_depend_on_the_thread_count():
+    """The median runs in fixed bands of rows spread over OpenCV's threads: one thread or two, the
+    same map to the bit (a map taller than a band, so there are several)."""
+    rng = np.random.default_rng(6)
+    band, truth, _ = disk_scene(rng, shape=(edges.BAND_ROWS * 2 + 40, 160))
+    blurred = cv2.GaussianBlur(truth, (0, 0), 1.5) + rng.normal(0, 0.3, truth.shape).astype(np.float32)
+    threads = cv2.getNumThreads()
+    try:
+        cv2.setNumThreads(1)
+        one = snap_to_edges(blurred, band)
+        cv2.setNumThreads(2)
+        two = snap_to_edges(blurred, band)
+    finally:
+        cv2.setNumThreads(threads)
+    assert np.array_equal(one, two) and not np.array_equal(one, blurred)

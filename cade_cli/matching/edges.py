@@ -14,11 +14,13 @@ Only gross moves are taken: a pixel the median moves by at most :data:`MIN_MOVE`
 value. Smaller moves are not edge corrections but smoothing, and a weighted median leans a slanted
 surface towards the pixels of like grey level (a few tenths of a px): that cost drone registration
 more than it gained (docs/research/refinement.md, 2026-11-29). OpenCV quantises a float map to 256
-levels; a moved pixel takes the mean of its neighbours' own values within a level (the span / 255) of
+levels (of each band of rows it is given); a moved pixel takes the mean of its neighbours' own values within a level (the span / 255) of
 the median, so the map keeps sub-pixel values there too (:func:`snap_to_edges`).
 """
 
 from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 import numpy as np
@@ -31,6 +33,9 @@ SIGMA = 10.0
 (``exp(-|ΔI|² / (2σ²))``, OpenCV's ``WMF_EXP``); 5 to 25 score alike."""
 NEIGHBOURS = 2
 """Px: the window a moved pixel's sub-pixel value is taken from."""
+BAND_ROWS = 128
+"""Rows of each band the median is computed on at once (with ``radius`` rows of context above and
+below), the bands spread over OpenCV's threads: fixed, so the map does not depend on the thread count."""
 MIN_MOVE = 1.0
 """Px: the median replaces a pixel only where it moves it by more than this."""
 
@@ -45,6 +50,25 @@ def guide_band(band: np.ndarray) -> np.ndarray:
     low, high = np.percentile(finite, [0.5, 99.5])
     scaled = (np.nan_to_num(band, nan=low) - low) * (255.0 / max(float(high - low), 1e-6))
     return np.clip(scaled, 0, 255).astype(np.uint8)
+
+
+def banded_weighted_median(guide: np.ndarray, values: np.ndarray, known: np.ndarray, *, radius: int,
+                           sigma: float) -> np.ndarray:
+    """OpenCV's weighted median of ``values`` (``known`` False: does not vote), one band of
+    :data:`BAND_ROWS` rows at a time, each with ``radius`` rows of context, on OpenCV's threads
+    (the call itself runs on one core; OpenCV lets go of the GIL)."""
+    rows = values.shape[0]
+    voting = known.astype(np.uint8)
+
+    def band(first: int) -> np.ndarray:
+        last = min(first + BAND_ROWS, rows)
+        top, bottom = max(first - radius, 0), min(last + radius, rows)
+        median = cv2.ximgproc.weightedMedianFilter(guide[top:bottom], values[top:bottom], radius, sigma=sigma,
+                                                   weightType=cv2.ximgproc.WMF_EXP, mask=voting[top:bottom])
+        return median[first - top:last - top]
+
+    with ThreadPoolExecutor(max(1, cv2.getNumThreads())) as pool:
+        return np.vstack(list(pool.map(band, range(0, rows, BAND_ROWS))))
 
 
 def snap_to_edges(disparity: np.ndarray, reference: np.ndarray, *, radius: int = RADIUS, sigma: float = SIGMA,
@@ -70,8 +94,7 @@ def snap_to_edges(disparity: np.ndarray, reference: np.ndarray, *, radius: int =
     low, high = float(disparity[finite].min()), float(disparity[finite].max())
     level = max((high - low) / 255.0, 1e-3)
     dense = np.where(finite, disparity, np.float32(low))
-    median = cv2.ximgproc.weightedMedianFilter(guide_band(reference), dense, radius, sigma=sigma,
-                                               weightType=cv2.ximgproc.WMF_EXP, mask=finite.astype(np.uint8))
+    median = banded_weighted_median(guide_band(reference), dense, finite, radius=radius, sigma=sigma)
     moved = finite & (np.abs(median - dense) > max(level, min_move))
     if not moved.any():
         return disparity.copy()
