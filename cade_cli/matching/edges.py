@@ -14,8 +14,9 @@ Only gross moves are taken: a pixel the median moves by at most :data:`MIN_MOVE`
 value. Smaller moves are not edge corrections but smoothing, and a weighted median leans a slanted
 surface towards the pixels of like grey level (a few tenths of a px): that cost drone registration
 more than it gained (docs/research/refinement.md, 2026-11-29). OpenCV quantises a float map to 256
-levels (of each band of rows it is given); a moved pixel takes the mean of its neighbours' own values within a level (the span / 255) of
-the median, so the map keeps sub-pixel values there too (:func:`snap_to_edges`).
+levels (of each band of rows it is given); a moved pixel takes the mean of its neighbours' own values
+within a level (the map's span / 255) of the median, so the map keeps sub-pixel values there too
+(:func:`snap_to_edges`).
 """
 
 from __future__ import annotations
@@ -26,11 +27,11 @@ import cv2
 import numpy as np
 
 RADIUS = 7
-"""Px: the median's window is (2 × RADIUS + 1)² — wider than the network's ¼-size blur
-(Middlebury 2014 and 2005 CS, 2026-11-29: 5 → 7 px gained, 7 → 9 px did not; docs/research/refinement.md)."""
+"""Px: the median's window is (2 × RADIUS + 1)², wider than the network's ¼-size blur (Middlebury 2014 and
+2005 CS, 2026-11-29: radius 5 and 10 score within a few tenths of it; docs/research/refinement.md)."""
 SIGMA = 10.0
 """The grey-level spread (of 255) over which a neighbour's weight falls by 1/e
-(``exp(-|ΔI|² / (2σ²))``, OpenCV's ``WMF_EXP``); 5 to 25 score alike."""
+(``exp(-|ΔI|² / (2σ²))``, OpenCV's ``WMF_EXP``); 5 to 20 score alike."""
 NEIGHBOURS = 2
 """Px: the window a moved pixel's sub-pixel value is taken from."""
 BAND_ROWS = 128
