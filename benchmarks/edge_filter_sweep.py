@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.data.catalogue import get_dataset
+from cade_cli.evaluation.metrics import score
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.evaluation.regions import region_masks
 from cade_cli.matching import densify, get_matcher
@@ -65,12 +66,13 @@ def cache_maps(dataset: str, data_dir: Path, model: str, protocol: str, cache: P
 
 
 def sweep(files: list[Path], settings: dict) -> dict[tuple[str, str], tuple[float, float]]:
-    """(setting, region) -> (mean EPE px, mean BMP3 %) over the pairs that have the region."""
+    """(setting, region) -> (mean EPE px, mean BMP3 %) over the pairs that have the region, each pair
+    scored as `cade benchmark` scores it (:func:`~cade_cli.evaluation.metrics.score`)."""
     scores: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for path in files:
         pair = np.load(path)
         gt, nonocc = pair["gt"], pair["nonocc"]
-        regions = {"all": np.isfinite(gt), **region_masks(gt, nonocc=nonocc if nonocc.size else None)}
+        regions = region_masks(gt, nonocc=nonocc if nonocc.size else None)
         for name, options in settings.items():
             if options is None:
                 disparity = pair["disparity"]
@@ -78,9 +80,9 @@ def sweep(files: list[Path], settings: dict) -> dict[tuple[str, str], tuple[floa
                 options = dict(options)
                 reference = np.zeros_like(pair["left"]) if options.pop("flat_guide", False) else pair["left"]
                 disparity = snap_to_edges(pair["disparity"], reference, **options)
-            for region, mask in regions.items():
-                error = np.abs(disparity[mask] - gt[mask])
-                scores.setdefault((name, region), []).append((float(error.mean()), 100 * float((error > 3).mean())))
+            scored = score(disparity, gt, **regions)
+            for region in ("all", *regions):
+                scores.setdefault((name, region), []).append((scored[f"epe_{region}"], scored[f"bad3_{region}"]))
     return {key: tuple(np.mean(values, axis=0)) for key, values in scores.items()}
 
 

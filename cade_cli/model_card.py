@@ -108,7 +108,7 @@ class ModelCard:
     the pair enlarged (a second scale); ``mirrored`` checks the estimate against the right view's
     (:mod:`cade_cli.matching.augmentation`). Applied in the card's order. Empty: one pass."""
     edge_filter: str = "none"
-    """What the ``cade`` matcher does last (:data:`cade_cli.matching.edges.EDGE_FILTERS`, the card's
+    """What the ``cade`` matcher does last (:data:`EDGE_FILTERS`, the card's
     ``runtime_edge_filter``): nothing (cards without the field), or ``weighted-median``: the map's
     weighted median guided by the left band puts depth edges where the image has them
     (:func:`cade_cli.matching.edges.snap_to_edges`)."""
