@@ -20,7 +20,7 @@ if [ -z "$DATA_DIR" ]; then
   [ -d .gpu-data ] || ${PY:-python3} benchmarks/gpu_data.py unpack .gpu-pack/data.tar .gpu-data || exit 1
   echo "data ready at +$(( $(date +%s) - T0 )) s"
 fi
-for name in $(grep -v '^#' runs/bakeoff-queue.txt); do
+for name in $(grep -v '^#' runs/bakeoff-queue.txt | grep -v '^campaign-'); do  # a campaign: runs/gpu-campaign.sh
   run=runs/gpu-bakeoff-${name#bakeoff-}
   done_steps=$(${PY:-python3} -c "import torch,sys; print(torch.load('$run/last.pt', weights_only=False, map_location='cpu')['step'])" 2>/dev/null || echo 0)
   [ "$done_steps" -ge "$steps" ] && continue

@@ -89,15 +89,19 @@ def test_a_cpu_budget_stops_the_run_checkpointed_and_a_resume_after_it_takes_one
     assert again["step"] == state["step"] + 1
 
 
-def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path):
+def test_training_logs_checkpoints_resumes_and_exports(tmp_path: Path, capsys):
     config = TrainConfig(out=str(tmp_path / "run"), textures=[], steps=4, batch=1, height=32, width=64,
                          levels=16, workers=0, validate_every=2, checkpoint_every=2, stop_after=3)
     checkpoint = train(config)
     assert torch.load(checkpoint, weights_only=False)["step"] == 3
+    assert "finished:" not in capsys.readouterr().out  # stopped early: a queue relaunches it
     config.stop_after = None
     train(config)
     state = torch.load(checkpoint, weights_only=False)
     assert state["step"] == 4
+    assert "finished: step 4 of 4 (checkpointed)" in capsys.readouterr().out
+    train(config)  # nothing left to train: says so again, so a queue never relaunches it
+    assert "finished: step 4 of 4" in capsys.readouterr().out
     config.steps = 6
     with (tmp_path / "run" / "log.csv").open("a") as log:  # as a run killed after an unsaved step 5 leaves it
         log.write("5,0,1e-3,1.0,1.0,train,,\n")

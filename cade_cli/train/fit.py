@@ -129,6 +129,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     )
     started, cpu_started = time.time(), time.process_time()
     running_loss, running_epe, seen = 0.0, 0.0, 0
+    done = start
     net.train()
     for step, batch in enumerate(batches, start=start):
         rate = learning_rate(config, step, cpu_before + time.process_time() - cpu_started)
@@ -167,6 +168,8 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
             print(f"time budget spent ({time.time() - started:.0f} s in this process, {cpu:.0f} CPU-s in the run): "
                   f"stopped after step {done} (checkpointed)", flush=True)
             break
+    if done >= config.steps:  # the line a queue reads (runs/bakeoff-queue.sh): a step-bounded run is not relaunched
+        print(f"finished: step {done} of {config.steps} (checkpointed)", flush=True)
     log.close()
     return checkpoint_path
 
