@@ -4,6 +4,8 @@ way of registering the bands onto the reference band lines them up, without grou
     python benchmarks/drone_alignment.py --data-dir ../shared/data/micasense --markdown table.md --pictures crops/
     python benchmarks/drone_alignment.py --data-dir ../shared/data/micasense --only rededge-m-bench \
         --models cade-v13,cade-v13-accurate,cade-v13-accurate-edges --markdown table.md --edge-crops crops/
+    python benchmarks/drone_alignment.py --data-dir ../shared/data/micasense --only rededge-m-bench \
+        --near 1,4 --markdown table.md --edge-crops crops/
 
 Every method reads the capture with the product's reader (cade_cli.capture.model.load_capture)
 and ends on the same grid, the reference band's raw pixels (the grid of register-capture's
@@ -18,7 +20,9 @@ cube), with the band's raw values resampled once, bilinearly, NaN where not seen
   plane-only  register_capture(plane_only=True): `cade register-capture --plane-only`;
   cade        register_capture(): `cade register-capture`, the default method; with --models
               M1,M2,... (cards' names or paths) instead one method per card, cade:M1, cade:M2 ...:
-              register_capture(model=M), `cade register-capture --model M`.
+              register_capture(model=M), `cade register-capture --model M`; with --near F1,F2,...
+              each of those once per factor, cade@nearF1 (cade:M@nearF1 ...):
+              register_capture(near=F), `cade register-capture --near F`.
 Each is scored per band with cade_cli.capture.alignment (residual shift of gradient-image
 correlation in 64 px windows on one grid: median, 90th percentile, share > 1 px, coverage)
 twice: on every window the method could score, and on the windows every method could score
@@ -47,7 +51,7 @@ from cade_cli.capture.alignment import Alignment, WindowShifts, coverage, summar
 from cade_cli.capture.anchors import register_anchor
 from cade_cli.capture.flight import group_captures
 from cade_cli.capture.model import Capture, load_capture
-from cade_cli.capture.register import read_raw, register_capture
+from cade_cli.capture.register import NEAR_FACTOR, check_near, read_raw, register_capture
 from cade_cli.errors import CadeError
 from cade_cli.io.atomic import atomic_outputs
 from cade_cli.model_card import read_card
@@ -91,8 +95,38 @@ def parse_models(text: str | None) -> dict[str, str] | None:
     return methods
 
 
+def parse_near(text: str | None) -> tuple[float, ...] | None:
+    """``--near F1,F2,...`` as the factors of
+    :func:`~cade_cli.capture.register.search_range`, in the order given; None for None (the
+    product's default, :data:`~cade_cli.capture.register.NEAR_FACTOR`, methods not renamed).
+
+    Raises:
+        CadeError: an empty list, a value that is no number or below 1, or one given twice.
+    """
+    if text is None:
+        return None
+    try:
+        factors = tuple(float(part) for part in text.split(","))
+        for factor in factors:
+            check_near(factor)
+    except ValueError:  # no number, or check_near's CadeError (a ValueError): the one message below
+        factors = ()
+    if not factors or len(set(factors)) < len(factors):
+        raise CadeError(f"--near {text!r}: give factors of at least 1, comma-separated, each once (e.g. 1,4)")
+    return factors
+
+
+def cade_methods(models: dict[str, str] | None, near: tuple[float, ...] | None) -> dict[str, tuple[str | None, float]]:
+    """{method: (model, near factor)} of the cade runs: ``cade`` (or ``cade:<card>`` per model of
+    :func:`parse_models`), each once per factor of :func:`parse_near` as ``<method>@near<F>``."""
+    base = {"cade": None} if models is None else models
+    if near is None:
+        return {method: (model, NEAR_FACTOR) for method, model in base.items()}
+    return {f"{method}@near{factor:g}": (model, factor) for method, model in base.items() for factor in near}
+
+
 def _cade(method: str) -> bool:
-    return method == "cade" or method.startswith("cade:")
+    return method.split("@")[0] == "cade" or method.startswith("cade:")
 
 
 def find_captures(data_dir: Path) -> dict[str, Capture]:
@@ -121,7 +155,7 @@ class Registered:
     starts: dict[str, str] = field(default_factory=dict)
     """Where each band's ECC started: "rotations", "features" or "plane"."""
     notes: dict[str, str] = field(default_factory=dict)
-    """register-capture's path per band (parallax, plane ...)."""
+    """register-capture's path per band (parallax, plane ...), with the range searched (px)."""
 
 
 def _timed(work):
@@ -139,25 +173,29 @@ def _profiled(work, top: int):
     return result
 
 
-def register(capture: Capture, *, profile: int = 0, models: dict[str, str] | None = None) -> dict[str, Registered]:
-    """Every method of :data:`METHODS` on one capture, "cade" once per model of ``models``
-    (:func:`parse_models`) where given (``profile`` > 0: cade under cProfile, its top
-    ``profile`` stages to stderr)."""
+def register(capture: Capture, *, profile: int = 0,
+             cade: dict[str, tuple[str | None, float]] | None = None) -> dict[str, Registered]:
+    """Every method of :data:`METHODS` on one capture, "cade" as the runs of ``cade``
+    (:func:`cade_methods`; None: the default model and near factor) (``profile`` > 0: cade under
+    cProfile, its top ``profile`` stages to stderr)."""
     raw = read_raw(capture)
     results = {"unaligned": Registered({b.name: np.asarray(r, np.float32) for b, r in zip(capture.bands, raw)},
                                        0.0, 0.0)}
     for method, ecc in (("rotations", False), ("homography", True)):
         anchor, wall, cpu = _timed(lambda: register_anchor(capture, ecc=ecc, raw=raw))
         results[method] = Registered(anchor.bands, wall, cpu, anchor.failures, anchor.starts)
-    cade = [("cade", None)] if models is None else list(models.items())
-    for method, plane_only, model in (("plane-only", True, None), *((m, False, card) for m, card in cade)):
+    cade = cade_methods(None, None) if cade is None else cade
+    runs = (("plane-only", True, None, NEAR_FACTOR), *((m, False, model, near) for m, (model, near) in cade.items()))
+    for method, plane_only, model, near in runs:
         # load_capture is timed too: register-capture reads the metadata for each capture
-        def work(plane_only=plane_only, model=model):
+        def work(plane_only=plane_only, model=model, near=near):
             return register_capture(load_capture([b.path for b in capture.bands]), plane_only=plane_only,
-                                    model=model)
+                                    model=model, near=near)
         done, wall, cpu = _timed(lambda: _profiled(work, profile) if profile and not plane_only else work())
         results[method] = Registered({b.name: image for b, image in zip(capture.bands, done.bands)}, wall, cpu,
-                                     notes={r.name: r.path for r in done.results})
+                                     notes={r.name: r.path + ("" if r.search is None else
+                                                              f" [{r.search[0]}, {r.search[1]}]")
+                                            for r in done.results})
     return results
 
 
@@ -285,7 +323,7 @@ def write_pictures(folder: Path, capture: Capture, name: str, results: dict[str,
     left = int(np.clip(column - CROP // 2, 0, width - CROP))
     crop = (slice(top, top + CROP), slice(left, left + CROP))
     written = []
-    for method in [m for m in results if m in PICTURED or m.startswith("cade:")]:
+    for method in [m for m in results if m in PICTURED or _cade(m)]:
         if band not in results[method].bands:
             continue
         path = folder / f"{name.replace('/', '-')}-{band.replace(' ', '')}-{method.replace(':', '-')}.png"
@@ -310,9 +348,9 @@ def edge_crops(folder: Path, capture: Capture, name: str, results: dict[str, Reg
 
 
 def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profile: int = 0,
-        models: dict[str, str] | None = None, edges: Path | None = None) -> str:
+        cade: dict[str, tuple[str | None, float]] | None = None, edges: Path | None = None) -> str:
     """Every capture under ``data_dir`` (``only``: those whose name holds one of its
-    comma-separated texts) registered by every method (``models``: :func:`parse_models`) and
+    comma-separated texts) registered by every method (``cade``: :func:`cade_methods`) and
     scored (the Markdown tables are returned; each capture's times go to stderr as it ends);
     crops into ``pictures``, edge crops into ``edges``."""
     scores, results, crops = {}, {}, {}
@@ -320,7 +358,7 @@ def run(data_dir: Path, *, pictures: Path | None, only: str | None = None, profi
     for name, capture in find_captures(data_dir).items():
         if wanted is not None and not any(text in name for text in wanted):
             continue
-        results[name] = register(capture, profile=profile, models=models)
+        results[name] = register(capture, profile=profile, cade=cade)
         scores[name] = score(capture, results[name])
         times = ", ".join(f"{m} {r.seconds:.1f} s wall / {r.cpu:.1f} s CPU"
                           + (f" ({len(r.failures)} bands failed)" if r.failures else "")
@@ -346,6 +384,8 @@ def main() -> None:
                         "comma-separated)")
     parser.add_argument("--models", help="instead of cade with its default model, cade once per model: card "
                         "names or paths, comma-separated (methods cade:<card>)")
+    parser.add_argument("--near", metavar="F1,F2", help="cade once per near factor (register-capture --near), "
+                        "comma-separated, each with every model (methods cade@near<F>)")
     parser.add_argument("--edge-crops", type=Path, metavar="FOLDER", help="folder for the edge crops: where the "
                         "reference has strong edges and the cade method(s) leave the largest residual")
     parser.add_argument("--profile", type=int, default=0, metavar="N",
@@ -354,10 +394,10 @@ def main() -> None:
     try:
         if not arguments.data_dir.is_dir():
             raise CadeError(f"--data-dir {arguments.data_dir} is not a folder")
-        models = parse_models(arguments.models)
+        cade = cade_methods(parse_models(arguments.models), parse_near(arguments.near))
         with atomic_outputs([arguments.markdown], folders=[arguments.pictures, arguments.edge_crops]) as staged:
             text = run(arguments.data_dir, pictures=staged.get(arguments.pictures), only=arguments.only,
-                       profile=arguments.profile, models=models, edges=staged.get(arguments.edge_crops))
+                       profile=arguments.profile, cade=cade, edges=staged.get(arguments.edge_crops))
             print(text)
             if arguments.markdown is not None:
                 staged[arguments.markdown].write_text(text + "\n")

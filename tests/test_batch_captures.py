@@ -226,3 +226,21 @@ def test_a_capture_record_fingerprints_the_network_as_a_pair_record_does():
     assert method_fingerprint("sgbm") == {}
     assert "model_sha256" not in CaptureOptions(method="sgbm").fingerprint()
     assert "model_sha256" not in CaptureOptions(method="cade", plane_only=True).fingerprint()
+
+
+def test_a_capture_record_holds_the_near_factor_a_run_before_near_matches_1():
+    """A changed --near changes the record (the capture is redone); --near 1, the search of the runs
+    before --near existed, leaves it out, so their records still hold; without dense matching it
+    decides nothing."""
+    import inspect
+
+    from cade_cli.batch.captures import CaptureOptions
+    from cade_cli.capture.register import NEAR_FACTOR
+    from cade_cli.cli.batch_captures import FlightArguments
+
+    assert CaptureOptions().near == FlightArguments().near == NEAR_FACTOR
+    assert inspect.signature(CaptureOptions).parameters["near"].default == NEAR_FACTOR
+    default, wider, own = (CaptureOptions(method="sgbm", near=near).fingerprint() for near in (NEAR_FACTOR, 8.0, 1.0))
+    assert default["near"] == NEAR_FACTOR and wider["near"] == 8.0 and "near" not in own
+    assert len({json.dumps(options, sort_keys=True) for options in (default, wider, own)}) == 3
+    assert "near" not in CaptureOptions(plane_only=True, near=8.0).fingerprint()

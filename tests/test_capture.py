@@ -1,9 +1,11 @@
 """cade register-capture: the band files' metadata (real captures when present, a tag removed),
 and a synthetic five-band capture rendered from a known rig over a known height map, registered
-within half a pixel; the plane-only and cheap paths; the files written."""
+within half a pixel; the plane-only and cheap paths; the files written; the dense search's reach
+beyond the nearest match (``--near``)."""
 
 from __future__ import annotations
 
+import inspect
 import json
 import shutil
 
@@ -16,7 +18,8 @@ from cli_runner import run_cade
 from cade_cli.capture.lens import BrownLens, FisheyeLens
 from cade_cli.capture.metadata import read_band_file
 from cade_cli.capture.model import load_capture
-from cade_cli.capture.register import register_capture, saturation_level
+from cade_cli.capture.parallax import Parallax
+from cade_cli.capture.register import NEAR_FACTOR, NEAR_LIMIT, register_capture, saturation_level, search_range
 from cade_cli.errors import CadeError
 
 MICASENSE = {"rededge-m-bench": ["IMG_0001", "IMG_0007"], "rededge-m-field": ["IMG_0008"]}
@@ -89,6 +92,8 @@ def test_a_synthetic_capture_is_registered_within_half_a_pixel(tmp_path, rng):
     assert paths == {"Blue": "parallax", "Green": "reference", "Red": "parallax", "NIR": "parallax",
                      "Red edge": "parallax"}
     for camera, result in zip(scene.cameras, registration.results):
+        if result.search is not None:  # the range searched is the widened one (NEAR_FACTOR by default)
+            assert result.search == search_range(result.parallax) != search_range(result.parallax, 1.0)
         if result.parallax is not None:  # the lens lies opposite its translation (X_band = X_ref + t)
             expected = -np.asarray(camera.translation[:2]) / np.hypot(*camera.translation[:2])
             assert result.parallax.baseline @ expected > np.cos(np.radians(2))
@@ -198,3 +203,34 @@ def test_only_small_unmatched_areas_count_as_seen():
     trusted[50:90, 20:80] = False  # 2400 px: 24 %
     holes = small_holes(trusted, share=0.002)
     assert holes[10:13, 10:13].all() and not holes[50:90, 20:80].any() and not holes[trusted].any()
+
+
+def _matched(low: float, high: float) -> Parallax:
+    """A band whose sparse matches measured parallax ``low`` .. ``high`` px."""
+    return Parallax(np.array([1.0, 0.0]), np.zeros(3), low, high, 1.0, 100)
+
+
+def test_the_search_reaches_near_objects_the_matches_miss():
+    bench = _matched(6.9, 11.6)  # IMG_0007's Red edge: the matches' range; a cable lies at 39-42 px
+    assert search_range(bench, 1.0) == (2, 20)  # the matches' range widened by its margins alone
+    assert search_range(bench) == search_range(bench, NEAR_FACTOR) == (2, 47)  # ceil(4 x 11.6)
+    assert search_range(bench, 1.5) == (2, 20)  # 1.5 x 11.6 = 17.4 lies inside: never lowered
+    assert search_range(_matched(50.0, 60.0)) == (46, NEAR_LIMIT)  # 4 x 60 = 240: capped
+    assert search_range(_matched(160.0, 170.0)) == search_range(_matched(160.0, 170.0), 1.0) == (156, 180)
+
+
+def test_near_defaults_to_near_factor_and_below_1_is_refused_in_one_line(tmp_path, rng, capsys):
+    from cade_cli.cli.batch import batch
+    from cade_cli.cli.capture import register_capture as command
+
+    for function in (command, batch):
+        assert inspect.signature(function).parameters["near"].default == NEAR_FACTOR
+    scene = write_capture(tmp_path / "shot", rng, size=(64, 48))
+    with pytest.raises(CadeError, match="at least 1"):
+        register_capture(load_capture(scene.paths), near=0.5)
+    output = tmp_path / "cube.tif"
+    for value in ("0.5", "nan"):
+        code, _, err = run_cade(["register-capture", *scene.paths, "-o", output, "--near", value], capsys)
+        lines = err.strip().splitlines()
+        assert code != 0 and len(lines) == 1 and ("--near" in lines[0] or "near factor" in lines[0]), err
+        assert "Traceback" not in err and not output.exists()

@@ -5,7 +5,8 @@ on the product's frame and grid) line the bands up far better than the raw files
 method is scored on one grid, and on the windows every method could score. Without the data:
 the edge crops' rule (benchmarks/drone_edges.py) on windows of known residuals and on a
 synthetic band with a patch misregistered by a known shift, and --models (cards become
-cade:<card> methods; an unknown card is refused in one line before any work)."""
+cade:<card> methods; an unknown card is refused in one line before any work) and --near (factors
+become cade@near<F> methods; a bad list is refused in one line, by one message)."""
 
 from __future__ import annotations
 
@@ -163,3 +164,26 @@ def test_models_become_cade_methods_and_an_unknown_card_is_refused_in_one_line(d
                            "--markdown", markdown], capture_output=True, text=True)
     assert done.returncode != 0 and done.stderr.strip().count("\n") == 0
     assert "no-such-card" in done.stderr and not markdown.exists()
+
+
+def test_near_factors_become_cade_methods_and_a_bad_list_is_refused_in_one_line(drone_alignment, tmp_path):
+    from cade_cli.capture.register import NEAR_FACTOR
+    from cade_cli.errors import CadeError
+
+    assert drone_alignment.parse_near(None) is None
+    assert drone_alignment.parse_near("1,4") == (1.0, 4.0) and drone_alignment.parse_near(" 2.5 ") == (2.5,)
+    assert drone_alignment.cade_methods(None, None) == {"cade": (None, NEAR_FACTOR)}
+    assert drone_alignment.cade_methods(None, (1.0, 4.0)) == {"cade@near1": (None, 1.0), "cade@near4": (None, 4.0)}
+    assert list(drone_alignment.cade_methods({"cade:a": "a", "cade:b": "b"}, (1.0, 2.5))) == [
+        "cade:a@near1", "cade:a@near2.5", "cade:b@near1", "cade:b@near2.5"]
+    messages = set()
+    for text in ("", "1,", "0.5,4", "4,4", "far", "nan", "inf"):
+        with pytest.raises(CadeError) as refused:
+            drone_alignment.parse_near(text)
+        messages.add(str(refused.value).replace(repr(text), "TEXT"))
+    assert messages == {"--near TEXT: give factors of at least 1, comma-separated, each once (e.g. 1,4)"}
+    markdown = tmp_path / "table.md"
+    done = subprocess.run([sys.executable, SCRIPT, "--data-dir", tmp_path, "--near", "1,0.5", "--markdown", markdown],
+                          capture_output=True, text=True)
+    assert done.returncode != 0 and done.stderr.strip().count("\n") == 0
+    assert "--near '1,0.5'" in done.stderr and not markdown.exists()

@@ -140,6 +140,22 @@ def test_options_are_checked_once_per_flight(flight, tmp_path, capsys):
     assert err.count("Blue, Red edge: left out by --bands (3 of 3 captures") == 1
 
 
+def test_a_changed_near_factor_redoes_the_flight_and_below_1_is_refused(flight, tmp_path, capsys):
+    cubes = tmp_path / "cubes"
+    code, stdout, err = batch(flight, cubes, capsys, "--near", "2")
+    assert code == 0 and "3 done" in stdout, err
+    assert json.loads((cubes / "IMG_0001.tif.cade.json").read_text())["options"]["near"] == 2.0
+    code, stdout, err = batch(flight, cubes, capsys, "--near", "2")
+    assert code == 0 and "0 done, 3 already finished" in stdout, err
+    code, stdout, err = batch(flight, cubes, capsys)  # the default factor: another search, redone
+    assert code == 0 and "3 done, 0 already finished" in stdout, err
+    before = {path.name: path.read_bytes() for path in cubes.iterdir()}
+    code, stdout, err = batch(flight, cubes, capsys, "--near", "0.5")
+    lines = err.strip().splitlines()
+    assert code != 0 and len(lines) == 1 and "--near" in lines[0] and not stdout, err
+    assert {path.name: path.read_bytes() for path in cubes.iterdir()} == before
+
+
 def test_a_note_every_capture_shares_is_shown_once_with_a_count(flight, tmp_path, capsys):
     code, stdout, err = batch(flight, tmp_path / "cubes", capsys)
     assert code == 0 and "3 done" in stdout, err

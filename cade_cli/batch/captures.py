@@ -15,7 +15,7 @@ from pathlib import Path
 from cade_cli.version import __version__
 from cade_cli.capture.cube import DTYPES, mask_path
 from cade_cli.capture.metadata import quiet_tifffile
-from cade_cli.capture.register import DEFAULT_MATCH_SCALE
+from cade_cli.capture.register import DEFAULT_MATCH_SCALE, NEAR_FACTOR, check_near
 from cade_cli.errors import CadeError
 from cade_cli.io.checksum import file_sha256
 from cade_cli.batch.job import peak_rss_mb
@@ -46,6 +46,7 @@ class CaptureOptions:
     plane_only: bool = False
     dtype: str = "float32"
     match_scale: float = DEFAULT_MATCH_SCALE
+    near: float = NEAR_FACTOR
     vis: bool = False
     ndvi: bool = False
     bands: tuple[str, ...] | None = None
@@ -57,12 +58,14 @@ class CaptureOptions:
     ``irradiance_source`` (``"panel IMG_0000"``); :mod:`cade_cli.batch.radiometry`."""
 
     def check(self) -> None:
-        """Refuse an unknown ``dtype``, method or radiometric quantity before any capture runs."""
+        """Refuse an unknown ``dtype``, method, radiometric quantity or a near factor below 1
+        before any capture runs."""
         from cade_cli.matching import get_matcher
 
         if self.dtype not in DTYPES:
             raise CadeError(f"unknown --dtype {self.dtype!r}; choose one of {', '.join(DTYPES)}")
         check_quantity(self.radiometry, self.dtype, self.irradiance)
+        check_near(self.near)
         if not self.plane_only:
             get_matcher(self.method, model=self.model)
 
@@ -79,9 +82,11 @@ class CaptureOptions:
         for name in ("radiometry", "irradiance", "irradiance_source"):  # raw values: older records still hold
             if options[name] is None:
                 del options[name]
+        if self.near == 1:  # the matches' own range: the records of runs before --near existed still hold
+            del options["near"]
         if self.plane_only:  # no dense matching: its options do not change the cube
-            for name in ("method", "model", "match_scale"):
-                del options[name]
+            for name in ("method", "model", "match_scale", "near"):
+                options.pop(name, None)
         else:
             options.update(method_fingerprint(self.method, model=self.model))
         return options
@@ -176,7 +181,8 @@ def run_capture(job: CaptureJob) -> CaptureResult:
         paths = [band.path for band in capture.bands]
         radiometry = capture_radiometry(options, paths, capture.names())
         registration = register_capture(capture, plane_only=options.plane_only, method=options.method,
-                                        scale=options.match_scale, model=options.model, radiometry=radiometry)
+                                        scale=options.match_scale, model=options.model, near=options.near,
+                                        radiometry=radiometry)
         wanted = job.outputs()
         for path in (*wanted.values(), job.record):
             path.parent.mkdir(parents=True, exist_ok=True)

@@ -42,6 +42,21 @@ RANGE_MARGIN_PX = (4, 8)
 """The disparity range searched: the matches' robust extremes widened by these shares of their
 span, and by at least these many px, below and above: more above, as the sparse matches miss
 small near surfaces more often than far ones (nothing lies beyond infinity, d = 0)."""
+NEAR_FACTOR = 4.0
+"""The top of each band's search is raised to at least this many times the matches' highest
+parallax (:func:`search_range`): the nearest point may be about this many times closer than the
+nearest match (IMG_0007's Red edge: matches at 6.9-11.6 px, a cable over the bench at 39-42 px,
+docs/drone.md, "Near objects the matches miss")."""
+NEAR_LIMIT = 160
+"""px of the full-size band: the widening by :data:`NEAR_FACTOR` never raises the top beyond
+this, so it never makes the matcher downscale the pair. The network of the default method
+searches a span (max - min, px of the pair it is given: the band at the matching scale) at full
+resolution up to its widest variant's levels less
+:data:`~cade_cli.matching.network.RANGE_MARGIN` (cade-v13: 192 - 8 = 184 px); beyond that it
+matches the pair downscaled by 2, 4 ... (:func:`~cade_cli.matching.network.choose_variant`,
+:func:`~cade_cli.matching.network.pyramid_factor`). 160 px is 80 px at the default match scale
+0.5, and stays within 184 px even at --match-scale 1 with the search's bottom down to -24 px.
+(The classical matchers do not downscale; their cost volume grows with the span.)"""
 
 
 @dataclass(frozen=True)
@@ -147,6 +162,21 @@ def _search(parallax: Parallax) -> tuple[int, int]:
     return math.floor(parallax.low - below), math.ceil(parallax.high + above)
 
 
+def check_near(near: float) -> None:
+    """Refuse a ``near`` factor (:func:`search_range`) below 1 or not finite."""
+    if not (math.isfinite(near) and near >= 1):
+        raise CadeError(f"the near factor must be at least 1 (1: the matches' own range), got {near:g}")
+
+
+def search_range(parallax: Parallax, near: float = NEAR_FACTOR) -> tuple[int, int]:
+    """(min, max) disparity a band's dense matching searches, px of the full-size band: the
+    matches' robust extremes widened by :data:`RANGE_MARGIN_SHARE` / :data:`RANGE_MARGIN_PX`,
+    its top then raised to ``near`` x ``parallax.high`` (at most :data:`NEAR_LIMIT` px; never
+    lowered). ``near`` >= 1; 1 keeps the matches' widened range."""
+    low, high = _search(parallax)
+    return low, max(high, min(math.ceil(near * parallax.high), NEAR_LIMIT))
+
+
 SMALL_HOLE_SHARE = 0.002
 """Unmatched areas smaller than this share of the image each (the matcher's checks reject
 patches of weak texture even on a flat field) that no nearer surface hides take the filled
@@ -212,7 +242,7 @@ def coarse(capture: Capture, index: int) -> bool:
 
 
 def _band_geometry(capture, index, raw_band, reference, reference_features, grid, *, reference_seen, plane_only,
-                   method, scale, model) -> tuple[BandResult, np.ndarray | None, np.ndarray | None]:
+                   method, scale, model, near) -> tuple[BandResult, np.ndarray | None, np.ndarray | None]:
     """One band's :class:`BandResult` and, for the parallax path, its dense disparity and trust
     in the common frame."""
     name = capture.bands[index].name
@@ -234,7 +264,7 @@ def _band_geometry(capture, index, raw_band, reference, reference_features, grid
     across = parallax.across_at(x, y)
     warped, inside = sample_bilinear(raw_band, *band_pixels(capture, index, x + across * np.float32(parallax.normal[0]),
                                                      y + across * np.float32(parallax.normal[1])))
-    search = _search(parallax)
+    search = search_range(parallax, near)
     disparity, trusted = _dense_disparity(reference, warped, inside, name, parallax, search, method=method,
                                           scale=scale, model=model)
     return BandResult(name, "parallax", homography, parallax, search, len(points_reference)), disparity, trusted
@@ -247,8 +277,8 @@ def matching_scale(capture: Capture, scale: float) -> float:
 
 
 def register_capture(capture: Capture, *, plane_only: bool = False, method: str = DEFAULT_METHOD,
-                     scale: float = DEFAULT_MATCH_SCALE, model: str | None = None, keep_sampled: bool = False,
-                     radiometry: Radiometry | None = None,
+                     scale: float = DEFAULT_MATCH_SCALE, model: str | None = None, near: float = NEAR_FACTOR,
+                     keep_sampled: bool = False, radiometry: Radiometry | None = None,
                      on_band: Callable[[BandResult], None] | None = None) -> CaptureRegistration:
     """Register every band of ``capture`` onto its reference band.
 
@@ -260,6 +290,8 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
         scale: resolution of the dense matching, 0 < scale <= 1 (the disparity is brought back
             to full size); lowered for bands over :data:`MAX_MATCH_PIXELS` (:func:`matching_scale`).
         model: another network for the learned methods (:func:`~cade_cli.stereo.estimate_disparity`).
+        near: each parallax band's search reaches up to this many times the matches' highest
+            parallax (:func:`search_range`, at most :data:`NEAR_LIMIT` px), >= 1.
         keep_sampled: keep where each output pixel was sampled in each band
             (:attr:`CaptureRegistration.sampled`; two float32 maps per band).
         on_band: called with each band's :class:`BandResult` once it is done (progress).
@@ -272,6 +304,7 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
     """
     if not 0 < scale <= 1:
         raise CadeError(f"the matching scale must be in (0, 1], got {scale}")
+    check_near(near)
     start = time.perf_counter()
     raw = read_raw(capture)
     width, height = capture.frame[1]
@@ -297,7 +330,8 @@ def register_capture(capture: Capture, *, plane_only: bool = False, method: str 
         else:
             result, disparity, trusted = _band_geometry(capture, index, signal[index], reference, reference_features,
                                                         (x, y), reference_seen=reference_seen,
-                                                        plane_only=plane_only, method=method, scale=scale, model=model)
+                                                        plane_only=plane_only, method=method, scale=scale, model=model,
+                                                        near=near)
             if disparity is None:
                 u, v = band_pixels(capture, index, px, py, result.homography)
                 seen = np.ones(px.shape, bool)

@@ -101,6 +101,9 @@ def batch(
     ndvi: Annotated[bool, typer.Option("--ndvi", help="With --captures: also write <name>_ndvi.png.")] = False,
     match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="With --captures: dense "
                                                "matching at this fraction of the resolution.")] = 0.5,
+    near: Annotated[float, typer.Option("--near", min=1.0, help="With --captures: each band's dense search reaches "
+                                        "up to this many times the sparse matches' largest parallax, as "
+                                        "register-capture --near; 1: the matches' own range.")] = 4.0,
     skip_panels: Annotated[bool, typer.Option("--skip-panels", help="With --captures: leave out the calibration "
                                               "panel shots (tagged Camera:CalibrationPicture, or named by --panel), "
                                               "with a note.")] = False,
@@ -139,7 +142,7 @@ def batch(
 
     flight = FlightArguments(reference, plane_only, dtype, ndvi, match_scale, skip_panels, tuple(panel or ()),
                              bands=bands, per_band=per_band, radiance=radiance, reflectance=reflectance,
-                             panel_corners=tuple(panel_corners or ()), panel_albedo=panel_albedo)
+                             panel_corners=tuple(panel_corners or ()), panel_albedo=panel_albedo, near=near)
     check_flight_sources(captures, flight, left=left, right=right, manifest=manifest, rig=rig_file)
     if captures is not None:
         return batch_captures(captures, output_dir, flight, method=method, model=model, vis=vis, force=force, log=log,

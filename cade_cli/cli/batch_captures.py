@@ -29,6 +29,7 @@ class FlightArguments:
     reflectance: bool = False
     panel_corners: tuple[str, ...] = ()
     panel_albedo: str | None = None
+    near: float = 4.0
 
     def given(self) -> list[str]:
         """The options given a value other than their default, as the user writes them."""
@@ -139,8 +140,8 @@ def _capture_options(flight: FlightArguments, *, method: str, model: str | None,
                              panel_corners=flight.panel_corners, panel_albedo=flight.panel_albedo, dtype=flight.dtype)
     radiometry = "radiance" if flight.radiance else "reflectance" if flight.reflectance else None
     options = CaptureOptions(reference=flight.reference, method=method, model=model, plane_only=flight.plane_only,
-                             dtype=flight.dtype, match_scale=flight.match_scale, vis=vis, ndvi=flight.ndvi,
-                             bands=parse_bands(flight.bands), radiometry=radiometry)
+                             dtype=flight.dtype, match_scale=flight.match_scale, near=flight.near, vis=vis,
+                             ndvi=flight.ndvi, bands=parse_bands(flight.bands), radiometry=radiometry)
     options.check()
     return options
 

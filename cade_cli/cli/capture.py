@@ -67,6 +67,10 @@ def register_capture(
     match_scale: Annotated[float, typer.Option("--match-scale", min=0.05, max=1.0, help="Dense matching at this "
                                                "fraction of the resolution (the disparity is brought back to full "
                                                "size).")] = 0.5,
+    near: Annotated[float, typer.Option("--near", min=1.0, help="Each band's dense search reaches up to this many "
+                                        "times the sparse matches' largest parallax (capped where the matcher would "
+                                        "lose resolution), so that objects up to that many times nearer than the "
+                                        "nearest match are found; 1: the matches' own range.")] = 4.0,
     radiance: RadianceOption = False,
     reflectance: ReflectanceOption = False,
     panel: PanelOption = None,
@@ -76,13 +80,14 @@ def register_capture(
     """Register the bands of one drone multispectral capture onto its reference band, parallax included."""
     from cade_cli.capture.cube import mask_path
     from cade_cli.capture.model import load_capture, parse_bands
-    from cade_cli.capture.register import matching_scale, register_capture as register
+    from cade_cli.capture.register import check_near, matching_scale, register_capture as register
     from cade_cli.matching import get_matcher
     from cade_cli.rigs.rig_file import load_rig
 
     _check_outputs(files, output, vis=vis, ndvi=ndvi, per_band=per_band, dtype=dtype)
     check_radiometry_options(radiance=radiance, reflectance=reflectance, panel=panel, panel_corners=panel_corners,
                              panel_albedo=panel_albedo, dtype=dtype)
+    check_near(near)  # typer's min=1 lets nan through
     if not plane_only:
         get_matcher(method)  # refuse an unknown name before reading anything
     mask = mask_path(output) if dtype == "uint16" else None
@@ -96,7 +101,8 @@ def register_capture(
                    f"{capture.size[0]}x{capture.size[1]} (dense matching keeps to 1.5 MP per band)")
     with StepBar(len(capture.bands), "registering bands") as bar:
         registration = register(capture, plane_only=plane_only, method=method, scale=match_scale, model=model,
-                                radiometry=radiometry, on_band=lambda result: bar.advance(f"{result.name} done"))
+                                near=near, radiometry=radiometry,
+                                on_band=lambda result: bar.advance(f"{result.name} done"))
     _print_notes(registration)
     _write_outputs(registration, output, mask=mask, per_band=per_band, vis=vis, ndvi=ndvi, dtype=dtype)
     _print_summary(registration, output, how='plane only' if plane_only else f'{method} at scale {scale:.2g}',
