@@ -14,6 +14,7 @@ CPU.
 
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --fast --runs 15
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --bakeoff --runs 5
+    OMP_NUM_THREADS=2 .venv/bin/python benchmarks/design_speed.py --iterative --runs 9
 """
 
 from __future__ import annotations
@@ -75,6 +76,18 @@ BAKEOFF = {
 }
 """``--bakeoff``: the Accuracy V design bake-off's designs (2026-11-28), untrained, at the flags of
 their ``runs/bakeoff-2026-11-28-<design>/command.sh``, against the control."""
+ITERATIVE = {"architecture": "cadenet-iterative", "levels": 192, "features2d": 24, "width2d": 32}
+ITERATIVE_TWINS = {
+    "control: CadeNet2D, the fast design (cade-v13)": FAST,
+    "cadenet-iterative f24 w32 (the campaign's, runs/campaign-2026-12-06-iterative)": ITERATIVE,
+    "cadenet-iterative f16 w32": {**ITERATIVE, "features2d": 16},
+    "cadenet-iterative f16 w24": {**ITERATIVE, "features2d": 16, "width2d": 24},
+    "cadenet-iterative f16 w16": {**ITERATIVE, "features2d": 16, "width2d": 16},
+    "cadenet-iterative f24 w32, 128 levels": {**ITERATIVE, "levels": 128},
+    "cadenet-iterative f16 w24, 128 levels": {**ITERATIVE, "features2d": 16, "width2d": 24, "levels": 128},
+}
+"""``--iterative``: smaller twins of the chosen design (2026-12-06), untrained, against the shipped fast
+design: which of them could be the fast tier, at or below OpenCV StereoSGBM's time (issue 51 item 5)."""
 
 
 def random_feeds(session: ort.InferenceSession, rng: np.random.Generator, width: int, height: int) -> dict:
@@ -147,6 +160,8 @@ def main() -> None:
     parser.add_argument("--fast", action="store_true", help="the fast design's table (FAST_DESIGNS) instead of DESIGNS")
     parser.add_argument("--bakeoff", action="store_true",
                         help="the design bake-off's table (BAKEOFF) instead of DESIGNS")
+    parser.add_argument("--iterative", action="store_true",
+                        help="the chosen design's smaller twins (ITERATIVE_TWINS) against the fast design")
     parser.add_argument("--only", nargs="*", help="designs to time besides the first (names from the table; default all)")
     parser.add_argument("--int8", action="store_true", help="also time each design's static int8 twin")
     parser.add_argument("--keep", type=Path, help="write the exported designs here (designN.onnx, in table order), "
@@ -162,7 +177,8 @@ def main() -> None:
     torch.manual_seed(0)
     folder = args.keep or Path(tempfile.mkdtemp())
     folder.mkdir(parents=True, exist_ok=True)
-    table = BAKEOFF if args.bakeoff else FAST_DESIGNS if args.fast else DESIGNS
+    table = (ITERATIVE_TWINS if args.iterative else BAKEOFF if args.bakeoff else FAST_DESIGNS if args.fast
+             else DESIGNS)
     designs = [(name, config) for index, (name, config) in enumerate(table.items())
                if not args.only or name in args.only or not index]
     nets, paths = [], []
