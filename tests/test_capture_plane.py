@@ -1,13 +1,14 @@
 """register-capture's cheap path: how far the plane is off beyond the sparse matches' own noise
-(parallax.off_plane) and the ECC refinement of the cheap path's plane (register.refined_plane),
-each against a truth built here."""
+(parallax.off_plane) and the ECC refinement of the cheap path's plane (register.refined_plane);
+and the parallax direction the matches' spread shows (parallax.across_slope): each against a
+truth built here."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from cade_cli.capture.parallax import CHEAP_PARALLAX, off_plane
+from cade_cli.capture.parallax import CHEAP_PARALLAX, across_slope, fit_direction, measure_parallax, off_plane
 from cade_cli.capture.register import refined_plane
 
 
@@ -41,3 +42,37 @@ def test_the_cheap_paths_plane_is_refined_to_the_true_homography(rng):
     assert error(start) > 0.5 and error(refined) < 0.2, (error(start), error(refined))  # 10 iterations
     flat = np.full_like(reference, 0.5)  # nothing to align: the plane it was given
     assert np.array_equal(refined_plane(reference, flat, start), start)
+
+
+def _bench_matches(rng, *, low, high, count=1200, angle=35.0):
+    """Matches (reference points, band points) of a scene with parallax ``low``-``high`` px along
+    ``angle`` degrees, plus an across field of 1.5 px at the centre (what the lens rotations
+    leave), 0.12 px of noise: the bench capture's Red edge (7-12 px)."""
+    points = rng.uniform([0, 0], [1280, 960], (count, 2))
+    baseline = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    normal = np.array([-baseline[1], baseline[0]])
+    d = rng.uniform(low, high, count)
+    offset = 1.5 + 1e-3 * (points[:, 0] - 640) - 5e-4 * (points[:, 1] - 480)
+    raw = -d[:, None] * baseline + offset[:, None] * normal + rng.normal(0, 0.12, (count, 2))
+    return points, points + raw, baseline
+
+
+def test_the_parallax_direction_is_the_one_the_matches_spread_shows(rng):
+    points, band, truth = _bench_matches(rng, low=7.0, high=12.0)
+    # the across field absorbs a turned direction at the matches' own parallax: the smallest
+    # offset of the directions that fit as well is ~9 degrees off (1.5 px / 9.5 px of parallax) ...
+    chosen, _, _ = fit_direction(points, band - points)
+    assert abs(chosen @ truth) < np.cos(np.radians(5))
+    # ... which shows as an across residual rising with the parallax: the direction is turned
+    parallax = measure_parallax(points, band, np.eye(3))
+    assert parallax.baseline @ truth > np.cos(np.radians(0.5))
+    assert abs(np.median(parallax.across_at(points[:, 0], points[:, 1])) - 1.5) < 0.1
+    assert across_slope(points, band - points, parallax.baseline, parallax.across) == 0.0
+
+
+def test_a_scene_at_one_depth_keeps_the_chosen_direction(rng):
+    points, band, _ = _bench_matches(rng, low=9.0, high=9.0)  # no spread: the slope is undecided
+    chosen, across, _ = fit_direction(points, band - points)
+    assert across_slope(points, band - points, chosen, across) == 0.0
+    parallax = measure_parallax(points, band, np.eye(3))
+    assert abs(abs(parallax.baseline @ chosen) - 1) < 1e-9 and parallax.negligible

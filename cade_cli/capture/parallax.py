@@ -11,6 +11,7 @@ signed (before or behind the plane). :func:`measure_parallax` finds it from the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import cv2
@@ -240,6 +241,55 @@ def fit_direction(points: np.ndarray, raw: np.ndarray) -> tuple[np.ndarray, np.n
     return np.array([np.cos(fine[chosen]), np.sin(fine[chosen])]), across, supporting
 
 
+TURN_SIGNIFICANCE = 7.0
+"""The direction :func:`fit_direction` chose is turned (:func:`across_slope`) only when the
+matches' across residuals rise with their parallax by at least this many standard errors of
+that slope: a scene at one depth (no spread of parallax) leaves the slope undecided, and the
+direction as chosen. Not 3-5: the least-squares error takes the matches' errors as independent,
+and they are not quite (what the affine across field leaves varies over the image). On the two
+bench captures (one rig, so one direction per band) the turns at 9-72 errors agree to 0.5 deg
+(Red 88.8 and 88.8, NIR 34.9 and 35.4, Red edge 34.7 and 34.9 deg; chosen before: 90.7 and 91.3,
+39.0 and 42.8, 43.0 and 44.3); Blue's slope, 6.3 errors on IMG_0001 and 0.5 on IMG_0007, would
+have turned one capture's Blue 0.8 deg away from the other's (docs/drone.md, "The parallax
+direction from the matches' spread (2026-12-06)")."""
+
+
+TURNS = 6
+"""At most this many turns (:func:`across_slope`): each refits the across field and the matches
+that support it (those within :data:`LINE_TOLERANCE` of a direction off by k miss the nearest
+matches, so one turn falls short)."""
+
+
+def across_slope(points: np.ndarray, raw: np.ndarray, direction: np.ndarray, field: np.ndarray) -> float:
+    """k of the least-squares ``raw·normal ≈ a + b·x + c·y + k·d`` over the matches (``points``
+    (N, 2), their displacements ``raw`` (N, 2); d = −raw·direction, the parallax) within
+    4 × :data:`LINE_TOLERANCE` of the across field ``field`` (a, b, c) of ``direction``, then
+    within 3 sigma of the fit (the matches that support a direction off by k, within
+    :data:`LINE_TOLERANCE`, would leave out the ones k moves most and bias k to 0): how many px
+    across the baseline each px of parallax moves a point, so that the true baseline is
+    ``direction − k·normal`` (turned by −atan k). 0 where k is within :data:`TURN_SIGNIFICANCE`
+    standard errors of 0. A direction that is off by some degrees shows only here: the across
+    field absorbs it at the matches' own parallax, but a point d px nearer lies about k·d px
+    off the searched line (IMG_0007's Red edge: k = 0.165, the direction 9.4 deg off, so 5 px
+    across at a cable 30 px of parallax nearer than the matches; docs/drone.md, "The parallax
+    direction from the matches' spread (2026-12-06)")."""
+    normal = np.array([-direction[1], direction[0]])
+    along, across = -(raw @ direction), raw @ normal
+    design = np.stack([np.ones(len(points)), points[:, 0] * 1e-3, points[:, 1] * 1e-3, along], axis=1)
+    keep = np.abs(across - design[:, :3] @ (np.asarray(field) * [1.0, 1e3, 1e3])) <= 4 * LINE_TOLERANCE
+    for _ in range(3):  # again without the outliers of each fit
+        if keep.sum() < 8:
+            return 0.0
+        coefficients, *_ = np.linalg.lstsq(design[keep], across[keep], rcond=None)
+        residual = across - design @ coefficients
+        sigma = float(np.sqrt(np.mean(residual[keep] ** 2)))
+        keep = np.abs(residual) <= max(3 * sigma, 1e-6)
+    inverse = np.linalg.pinv(design[keep].T @ design[keep])
+    error = sigma * math.sqrt(max(float(inverse[3, 3]), 0.0))
+    slope = float(coefficients[3])
+    return slope if abs(slope) >= TURN_SIGNIFICANCE * error and error > 0 else 0.0
+
+
 def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homography: np.ndarray) -> Parallax:
     """The parallax direction, range and across field of a band from its matches with the
     reference (in the common frame, the band's lens rotation applied), and how far the plane
@@ -248,7 +298,9 @@ def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homo
     The lens translations are not in the files, so a scene point is displaced from the
     reference to the band by ``d·(−baseline)`` with d the larger the nearer the point: the
     displacements of the matches lie along one line, up to what the lens rotations leave
-    (the across field). :func:`fit_direction` finds it; the sign makes d >= 0.
+    (the across field). :func:`fit_direction` finds it; the sign makes d >= 0; then it is
+    turned as long as the matches' across residuals still rise with their parallax
+    (:func:`across_slope`, at most :data:`TURNS` times).
     """
     if len(points_reference) < MIN_MATCHES:
         return Parallax(np.array([1.0, 0.0]), np.zeros(3), 0.0, 0.0, 0.0, len(points_reference))
@@ -256,6 +308,14 @@ def measure_parallax(points_reference: np.ndarray, points_band: np.ndarray, homo
     direction, across, supporting = fit_direction(points_reference, raw)
     if np.median(raw[supporting] @ direction) > 0:
         direction, across = -direction, -across  # the normal turns with the direction
+    for _ in range(TURNS):  # the matches' spread of parallax shows the direction off: turn it, refit the across
+        slope = across_slope(points_reference, raw, direction, across)
+        if not slope:
+            break
+        turned = direction - slope * np.array([-direction[1], direction[0]])
+        angle = np.array([math.atan2(turned[1], turned[0])])
+        _, across, supporting = _best_direction(points_reference, raw, angle, supporting[:, None])
+        direction = np.array([math.cos(angle[0]), math.sin(angle[0])])
     along = -(raw[supporting] @ direction)
     low, high = np.percentile(along, [1, 99])
     back = cv2.perspectiveTransform(points_band.reshape(-1, 1, 2), np.linalg.inv(homography)).reshape(-1, 2)
