@@ -1,6 +1,7 @@
 """Two rewrites of cadenet-iterative's 1/4 re-matching (the correlation volume and hat_lookup), tried for speed on
-2026-12-06 and not kept: both give the same network (same weights, same output within float error) and both are
-slower in onnxruntime on the CPU than the shipped form (docs/research/network-design.md, 2026-12-06).
+2026-12-06 and not kept: both give the same network (same weights, same output within float error), and neither is
+faster in onnxruntime on the CPU than the shipped form: stack within the runs' spread, matmul slower
+(docs/research/network-design.md, 2026-12-06).
 
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/results/2026-12-06-iterative-twins/lookup_variants.py --variant stack
     OMP_NUM_THREADS=2 .venv/bin/python benchmarks/results/2026-12-06-iterative-twins/lookup_variants.py --variant matmul
