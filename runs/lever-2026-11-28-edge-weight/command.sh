@@ -11,6 +11,9 @@
 #
 #   nohup nice runs/lever-2026-11-28-edge-weight/command.sh >> runs/lever-2026-11-28-edge-weight/stdout.log 2>&1 &
 # resumes where it stopped. Picture of the lever's data: docs/img/training-levers-2026-11-28.png.
+# Since 2026-12-06 it also stops at the control's 2,555 steps (--steps 2555: the cosine over them, the CPU-hour a
+# backstop): an equal CPU-hour alone gave the floating lever 15 % more steps (docs/research/training-data.md).
+# The GPU bake-off's --steps, given after, overrides it.
 run=${RUN_DIR:-$(dirname "$0")}  # RUN_DIR: the same design elsewhere (the GPU bake-off, runs/gpu-bakeoff.sh)
 exec "$(dirname "$0")/../bakeoff.sh" "$run" --architecture cadenet2d \
-  --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 --edge-weight 2.0 "$@"
+  --features2d 16 --width2d 32 --half-channels 8 --slice-channels 4 --edge-weight 2.0 --steps 2555 "$@"
