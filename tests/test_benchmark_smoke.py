@@ -174,7 +174,8 @@ def test_tiling_runs_cade_disparity_on_a_generated_pair_within_a_budget(monkeypa
     row = next(line for line in out.splitlines() if line.startswith("| sgbm | 480x48 |")).strip(" |").split(" | ")
     assert "error" not in row[-1], row  # the note column: cade disparity's own error, if any
     seconds, peak_gb, tiles = float(row[3]), float(row[4]), int(row[6])
-    assert seconds > 0 and 0 < peak_gb < 1.0 and tiles >= 1
+    # the time column is printed to 0.01 s, and so thin an sgbm pair can take less: only its presence is checked
+    assert seconds >= 0 and 0 < peak_gb < 1.0 and tiles >= 1
 
 
 def test_uncalibrated_rectifies_the_bundled_pair(monkeypatch, capsys):
