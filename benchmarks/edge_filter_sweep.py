@@ -5,7 +5,7 @@
 
 The model (a card without the edge filter) is run on every pair of the dataset (the ``cade`` matcher,
 each task's map filled by ``densify`` as ``cade benchmark`` scores it) and the maps are cached in
-``--cache`` (one .npz per pair: the bands, the map, ground truth, occlusion mask); then each setting
+``--cache`` (one .npz per pair: both bands, the map, ground truth, occlusion mask); then each setting
 of :func:`~cade_cli.matching.edges.snap_to_edges` is applied to the filled maps and scored on all,
 non-occluded, depth-edge and occluded pixels (cade_cli/evaluation/regions.py), mean over pairs.
 The filter here runs after the fill; in the matcher it runs before it (on the network's own values
@@ -54,12 +54,12 @@ def cache_maps(dataset: str, data_dir: Path, model: str, protocol: str, cache: P
         for task in get_protocol(protocol).tasks:
             path = cache / f"{scene.name.replace('/', '_')}_{task.name.replace('>', 'to')}.npz"
             files.append(path)
-            if path.exists():
+            if path.exists() and "right" in np.load(path).files:  # caches before 2026-12-07 kept the left band only
                 continue
             left, right = task.bands(scene.left, scene.right)
             result = matcher(left, right, max_disp=scene.max_disp, min_disp=0, preprocess="cade")
             nonocc = scene.nonocc if scene.nonocc is not None else np.zeros(0, bool)
-            np.savez_compressed(path, left=left, disparity=densify(result.disparity, result.valid),
+            np.savez_compressed(path, left=left, right=right, disparity=densify(result.disparity, result.valid),
                                 gt=scene.disparity, nonocc=nonocc)
             print(f"cached {path.name}", file=sys.stderr, flush=True)
     return files
@@ -97,6 +97,14 @@ def table(scores: dict, settings: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def report(text: str, markdown: Path | None) -> int:
+    """Print ``text``, also write it to ``markdown`` when given; the script's exit status (0)."""
+    print(text)
+    if markdown is not None:
+        markdown.write_text(text)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", required=True)
@@ -109,10 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     files = cache_maps(arguments.dataset, arguments.data_dir, arguments.model, arguments.protocol, arguments.cache)
     text = (f"{arguments.dataset}, {arguments.protocol}, {arguments.model}'s maps, {len(files)} pairs "
             f"(EPE px / BMP3 %, mean over pairs)\n\n" + table(sweep(files, SETTINGS), SETTINGS))
-    print(text)
-    if arguments.markdown is not None:
-        arguments.markdown.write_text(text)
-    return 0
+    return report(text, arguments.markdown)
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ SCRIPTS: dict[str, str] = {
     "design_speed.py": "",
     "drone_alignment.py": "tests/test_drone_alignment.py",
     "edge_filter_sweep.py": "",
+    "edge_headroom.py": "tests/test_edge_headroom.py (candidates, oracle, correlation and consistency on built edges)",
     "gpu_data.py": "tests/test_gpu_data.py (a small data folder packed and unpacked)",
     "memory.py": "here: a 96x64 generated pair",
     "msir_alignment.py": "tests/test_msir.py, tests/test_array.py (its rig file, with ../shared/data)",
