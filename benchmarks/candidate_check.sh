@@ -21,9 +21,14 @@
 #
 # Run it from the repository root with ../shared/data beside it. HARDWARE names the machine in the
 # card (default: this development VM). CHOOSER_SCENES (comma-separated) fits the chooser on those
-# train-real scenes only: the ones the checkpoint's run held out (fit --real-hold-out). Threads:
+# train-real scenes only: the ones the checkpoint's run held out (fit --real-hold-out). CARD_EXTRAS (a JSON
+# object) is merged into the exported card after its chooser, for a tier that adds runtime stages to the
+# network, e.g. the accurate tier's '{"test_time_augmentation": ["upscaled-x1.5"], "runtime_edge_filter":
+# "weighted-median"}' (models/cade-v13-accurate-edges.json). Threads:
 # OMP_NUM_THREADS as set by the caller; JOBS (default 1) runs that many scenes at a time in step 3
-# (`cade benchmark --jobs`: the same scores, results in scene order).
+# (`cade benchmark --jobs`: the same scores, results in scene order). SETS (space-separated dataset names)
+# narrows step 3 for a look at a checkpoint on the way (e.g. SETS=middlebury14): the verdict is then the rule's
+# on those sets only, not a shipping decision.
 set -euo pipefail
 if [ $# -lt 3 ]; then
   echo "usage: benchmarks/candidate_check.sh CHECKPOINT NAME OUT_DIR [SHIPPED]" >&2
@@ -45,20 +50,24 @@ chooser_options=()
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
   --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${chooser_options[@]}"
+if [ -n "${CARD_EXTRAS:-}" ]; then
+  .venv/bin/python -c "import json, sys; p = sys.argv[1]; card = json.load(open(p)); card.update(json.loads(sys.argv[2]));
+json.dump(card, open(p, 'w'), indent=2)" "$card" "$CARD_EXTRAS"
+fi
 fi
 runs=()
-for dataset in middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015; do
+for dataset in ${SETS:-middlebury05 middlebury14 flyingthings3d kitti2012 kitti2015 msir-outdoor}; do
+  protocol=(--protocol cs,rgb)
+  [ "$dataset" = msir-outdoor ] && protocol=()
   .venv/bin/cade benchmark --dataset "$dataset" --data-dir "$data" --methods cade --model "$shipped,$card" \
-    --protocol cs,rgb --jobs "$jobs" --json "$out/$dataset.json" > "$out/$dataset.md"
+    "${protocol[@]}" --jobs "$jobs" --json "$out/$dataset.json" > "$out/$dataset.md"
   runs+=("$out/$dataset.json")
 done
-.venv/bin/cade benchmark --dataset msir-outdoor --data-dir "$data" --methods cade --model "$shipped,$card" \
-  --jobs "$jobs" --json "$out/msir-outdoor.json" > "$out/msir-outdoor.md"
-runs+=("$out/msir-outdoor.json")
 {
   echo "# \`$name\` ($checkpoint) against $shipped"
   echo
-  echo "\`REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
+  echo "\`${SETS:+SETS='$SETS'} REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
+    "${CARD_EXTRAS:+CARD_EXTRAS='$CARD_EXTRAS'}" \
     "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=$jobs benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
     "($(date -u +%Y-%m-%d), $hardware). Its last step," \
     "\`benchmarks/shipping_rule.py --shipped cade:$shipped --candidate cade:$name $out/*.json\`, printed:"

@@ -2,7 +2,9 @@
 # The bake-off's queue (Accuracy V, begun 2026-11-28): trains the runs named in runs/bakeoff-queue.txt one after
 # the other, each by its own command.sh (which stops itself when its CPU budget is spent or its steps are done),
 # skipping those whose stdout.log says so ("budget spent", or fit's "finished: "), then judges each spent run once
-# (benchmarks/bakeoff_judge.sh, one thread, into benchmarks/results/2026-11-28-bakeoff/RUN). It re-reads the list
+# (benchmarks/bakeoff_judge.sh, one thread, into benchmarks/results/2026-11-28-bakeoff/RUN), after the run's own
+# shipping check where it has one (runs/RUN/ship-check.sh, once: its exit status goes to runs/RUN/ship-check.exit,
+# its output to runs/RUN/ship-check.log). It re-reads the list
 # after each run, waits for a listed run's command.sh to appear and for a run some other process is training, and
 # ends when every listed run is spent and judged. One run at a time: the VM has 2 vCPUs.
 #   nohup nice runs/bakeoff-queue.sh >> runs/bakeoff-queue.log 2>&1 &
@@ -13,6 +15,11 @@ while true; do
   for run in $(grep -v '^#' runs/bakeoff-queue.txt); do
     while pgrep -f "fit --out runs/$run " > /dev/null; do sleep 60; done  # trained by another process
     if grep -qE "budget spent|^finished: " "runs/$run/stdout.log" 2>/dev/null; then
+      if [ -x "runs/$run/ship-check.sh" ] && [ ! -f "runs/$run/ship-check.exit" ]; then
+        echo "$(date -u +%FT%TZ) shipping check of $run"
+        "runs/$run/ship-check.sh" >> "runs/$run/ship-check.log" 2>&1
+        echo $? > "runs/$run/ship-check.exit"  # 0: the candidate passes the rule
+      fi
       [ -f "$judged/$run/kitti2015.json" ] || [ -f "$judged/$run/FAILED" ] && continue
       echo "$(date -u +%FT%TZ) judging $run"
       OMP_NUM_THREADS=1 benchmarks/bakeoff_judge.sh "runs/$run" "$judged/$run" \
