@@ -66,14 +66,20 @@ def candidates(disparity: np.ndarray, radius: int) -> tuple[np.ndarray, np.ndarr
     return rows, columns, np.stack([disparity[rows, columns], low[rows, columns], high[rows, columns]], 1)
 
 
+def assign(disparity: np.ndarray, rows: np.ndarray, columns: np.ndarray, options: np.ndarray,
+           pick: np.ndarray) -> np.ndarray:
+    """A copy of ``disparity`` with each (row, column) given its candidate ``options[i, pick[i]]``."""
+    out = disparity.copy()
+    out[rows, columns] = options[np.arange(len(pick)), pick]
+    return out
+
+
 def oracle(disparity: np.ndarray, gt: np.ndarray, radius: int) -> np.ndarray:
     """``disparity`` with each edge pixel given the candidate nearest ``gt`` (kept where GT is unknown)."""
     rows, columns, options = candidates(disparity, radius)
     error = np.abs(options - gt[rows, columns][:, None])
     pick = np.where(np.isfinite(error[:, 0]), np.argmin(np.nan_to_num(error, nan=np.inf), axis=1), 0)
-    out = disparity.copy()
-    out[rows, columns] = options[np.arange(len(pick)), pick]
-    return out
+    return assign(disparity, rows, columns, options, pick)
 
 
 def window_correlation(left: np.ndarray, right: np.ndarray, guide: np.ndarray, rows: np.ndarray,
@@ -116,9 +122,7 @@ def local_pick(disparity: np.ndarray, left: np.ndarray, right: np.ndarray, radiu
     match = np.stack([window_correlation(left, right, guide, rows, columns, options[:, k]) for k in range(3)], 1)
     match[:, 0] += PICK_MARGIN
     pick = np.argmax(match, axis=1)
-    out = disparity.copy()
-    out[rows, columns] = options[np.arange(len(pick)), pick]
-    return out
+    return assign(disparity, rows, columns, options, pick)
 
 
 def consistency_pick(disparity: np.ndarray, right_view: np.ndarray, radius: int) -> np.ndarray:
@@ -129,19 +133,16 @@ def consistency_pick(disparity: np.ndarray, right_view: np.ndarray, radius: int)
     disagreement = np.where(target < 0, np.inf, disagreement)
     disagreement[:, 0] -= CONSISTENCY_MARGIN
     pick = np.argmin(np.nan_to_num(disagreement, nan=np.inf), axis=1)
-    out = disparity.copy()
-    out[rows, columns] = options[np.arange(len(pick)), pick]
-    return out
+    return assign(disparity, rows, columns, options, pick)
 
 
-def right_view_map(path: Path, model: str, max_disp: int) -> np.ndarray:
-    """The model's (filled) map of the right view of ``path``'s pair, from the mirrored pair; cached as
+def right_view_map(path: Path, matcher, max_disp: int) -> np.ndarray:
+    """``matcher``'s (filled) map of the right view of ``path``'s pair, from the mirrored pair; cached as
     ``<pair>.right-view.npy`` beside it."""
     cached = path.with_suffix(".right-view.npy")
     if cached.exists():
         return np.load(cached)
     pair = np.load(path)
-    matcher = get_matcher("cade", model=model)
     result = matcher(np.ascontiguousarray(pair["right"][:, ::-1]), np.ascontiguousarray(pair["left"][:, ::-1]),
                      max_disp=max_disp, min_disp=0, preprocess="cade")
     right_view = np.ascontiguousarray(densify(result.disparity, result.valid)[:, ::-1])
@@ -152,8 +153,8 @@ def right_view_map(path: Path, model: str, max_disp: int) -> np.ndarray:
 def headroom(files: list[Path], radii: list[int], *, mirrored: dict | None = None) -> tuple[dict, dict]:
     """The rows' (setting, region) -> (mean EPE, mean BMP3) over ``files``, and the settings' names;
     ``mirrored`` maps each file to its right view's map (adds the consistency rows)."""
-    names = {"as shipped (edge filter)": None, **{f"oracle, radius {r}": r for r in radii},
-             f"local pick, radius {max(radii)}": -max(radii)}
+    names = {"as shipped (edge filter)": ("shipped", 0), **{f"oracle, radius {r}": ("oracle", r) for r in radii},
+             f"local pick, radius {max(radii)}": ("local", max(radii))}
     if mirrored is not None:
         names.update({f"consistency pick, radius {r}": ("consistency", r) for r in radii})
     scores: dict[tuple[str, str], list[tuple[float, float]]] = {}
@@ -162,15 +163,15 @@ def headroom(files: list[Path], radii: list[int], *, mirrored: dict | None = Non
         gt, nonocc = pair["gt"], pair["nonocc"]
         regions = region_masks(gt, nonocc=nonocc if nonocc.size else None)
         shipped = snap_to_edges(pair["disparity"], pair["left"])
-        for name, radius in names.items():
-            if radius is None:
+        for name, (kind, radius) in names.items():
+            if kind == "shipped":
                 disparity = shipped
-            elif isinstance(radius, tuple):
-                disparity = consistency_pick(shipped, mirrored[path], radius[1])
-            elif radius > 0:
+            elif kind == "oracle":
                 disparity = oracle(shipped, gt, radius)
+            elif kind == "local":
+                disparity = local_pick(shipped, pair["left"], pair["right"], radius)
             else:
-                disparity = local_pick(shipped, pair["left"], pair["right"], -radius)
+                disparity = consistency_pick(shipped, mirrored[path], radius)
             scored = score(disparity, gt, **regions)
             for region in ("all", *regions):
                 scores.setdefault((name, region), []).append((scored[f"epe_{region}"], scored[f"bad3_{region}"]))
@@ -195,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     if arguments.mirrored:
         scenes = {scene.name.replace("/", "_"): scene.max_disp
                   for scene in get_dataset(arguments.dataset)(arguments.data_dir)}
-        mirrored = {path: right_view_map(path, arguments.model, scenes[path.stem.rsplit("_", 1)[0]]) for path in files}
+        matcher = get_matcher("cade", model=arguments.model)
+        mirrored = {path: right_view_map(path, matcher, scenes[path.stem.rsplit("_", 1)[0]]) for path in files}
     scores, names = headroom(files, radii, mirrored=mirrored)
     text = (f"{arguments.dataset}, {arguments.protocol}, {arguments.model}'s maps with the edge filter, {len(files)} "
             f"pairs (EPE px / BMP3 %, mean over pairs; regions: {', '.join(REGIONS)})\n\n" + table(scores, names))
