@@ -37,7 +37,7 @@ fi
 checkpoint=$1 name=$2 out=$3 shipped=${4:-cade-v13}
 data=../shared/data
 cpu=$(sed -n 's/^model name[[:space:]]*: //p' /proc/cpuinfo 2>/dev/null | head -1)
-hardware=${HARDWARE:-"$(nproc)-vCPU development VM (${cpu:-CPU unknown}), torch 2.13.0+cpu, no GPU lent"}
+hardware=${HARDWARE:-"$(nproc --all)-vCPU development VM (${cpu:-CPU unknown}), torch 2.13.0+cpu, no GPU lent"}
 refinement=${REFINEMENT:-rank-sgbm} jobs=${JOBS:-1}
 mkdir -p "$out"
 card="$out/$name.json"

@@ -5,9 +5,9 @@
 # models/cade-v13-accurate-edges.json) and judged by the shipping rule against the shipped accurate tier in the
 # same runs, one thread (the CPU may be shared: scores are exact, times are not). The verdict is the last lines of
 # benchmarks/results/2026-12-07-campaign-ship-check/rule.md; speed (the tier's 3 s/MP) is measured apart, on a quiet
-# CPU, with benchmarks/speed.py.
+# CPU, with benchmarks/speed.py. JOBS=2: two scenes at a time, one thread each (the same scores).
 cd "$(dirname "$0")/../.."
 REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \
 CARD_EXTRAS='{"test_time_augmentation": ["upscaled-x1.5"], "runtime_edge_filter": "weighted-median"}' \
-OMP_NUM_THREADS=1 exec benchmarks/candidate_check.sh runs/campaign-2026-12-06-iterative/last.pt \
+JOBS=2 OMP_NUM_THREADS=1 exec benchmarks/candidate_check.sh runs/campaign-2026-12-06-iterative/last.pt \
   cade-v14-accurate benchmarks/results/2026-12-07-campaign-ship-check cade-v13-accurate-edges
