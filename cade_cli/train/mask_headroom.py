@@ -1,0 +1,107 @@
+"""How much a better convex mask could give: is the right surface among the convex upsampler's nine candidates?
+(Accuracy V, docs/research/refinement.md, 2026-12-07, later.)
+
+    .venv/bin/python -m cade_cli.train.mask_headroom CHECKPOINT NAME=DIR [NAME=DIR ...]
+
+CHECKPOINT is a cadenet-iterative run's checkpoint (any form, e.g. ``init.pt`` of
+runs/campaign-2026-12-07-extended: the first campaign's last weights); each DIR holds one .npz per pair as
+``benchmarks/edge_headroom.py --cache DIR`` writes them (raw bands, ground truth, non-occluded mask). The network
+alone runs on each pair (its input transform, padded as the runtime pads). Its last stage makes each
+full-resolution pixel a convex combination of the nine 1/4-resolution estimates around its cell. Rows (mean over
+pairs, EPE px / BMP3 % on all pixels, BMP3 on the non-occluded and depth-edge ones):
+
+- ``network``: the network's map (the soft convex combination);
+- ``hard pick``: each pixel given the one candidate its mask weighs most;
+- ``oracle``: each pixel given the candidate nearest the ground truth (an upper bound on any mask: it uses the
+  truth). Where the oracle is far below the network, the 1/4 estimate holds the right surface next to the pixel
+  and the mask does not pick it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from cade_cli.evaluation.metrics import score
+from cade_cli.evaluation.regions import region_masks
+from cade_cli.matching.network import pad_to_divisor
+from cade_cli.spectral import network_input
+from cade_cli.train import net_iterative
+from cade_cli.train.net_blocks import convex_weights, neighbours3x3
+from cade_cli.train.networks import network_of
+
+ROWS = ("network", "hard pick", "oracle")
+
+
+def candidates(net: torch.nn.Module, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The network's (H, W) map of the network-input bands ``left``, ``right``, the (9, H, W) candidates of its
+    convex upsampling (full-resolution px) and the (H, W) index of the one its mask weighs most."""
+    height, width = left.shape
+    padded = [torch.from_numpy(pad_to_divisor(band, net.divisor)[0])[None, None] for band in (left, right)]
+    seen = {}
+    upsample = net_iterative.convex_upsample
+
+    def keep(disparity, mask_logits, factor):
+        seen.update(disparity=disparity, mask=mask_logits, factor=factor)
+        return upsample(disparity, mask_logits, factor)
+
+    net_iterative.convex_upsample = keep
+    try:
+        with torch.no_grad():
+            disparity = net(*padded)["disparity"][0, 0, :height, :width].numpy()
+    finally:
+        net_iterative.convex_upsample = upsample
+    factor = seen["factor"]
+    options = factor * neighbours3x3(seen["disparity"])  # (1, 9, h, w)
+    options = options.repeat_interleave(factor, 2).repeat_interleave(factor, 3)[0, :, :height, :width].numpy()
+    heaviest = convex_weights(seen["mask"], factor).argmax(1).float()  # (1, factor², h, w)
+    heaviest = F.pixel_shuffle(heaviest, factor)[0, 0, :height, :width].numpy().astype(np.int64)
+    return disparity, options, heaviest
+
+
+def maps(disparity: np.ndarray, options: np.ndarray, heaviest: np.ndarray, gt: np.ndarray) -> dict[str, np.ndarray]:
+    """The three rows' maps of one pair (:data:`ROWS`)."""
+    error = np.abs(options - gt[None])
+    nearest = np.argmin(np.where(np.isfinite(error), error, np.inf), 0)
+    return {"network": disparity,
+            "hard pick": np.take_along_axis(options, heaviest[None], 0)[0],
+            "oracle": np.take_along_axis(options, nearest[None], 0)[0]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint", type=Path)
+    parser.add_argument("sets", nargs="+", metavar="NAME=DIR")
+    args = parser.parse_args(argv)
+    state = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
+    if state["config"].get("architecture") != "cadenet-iterative":
+        parser.error(f"{args.checkpoint} is not a cadenet-iterative run's checkpoint")
+    net = network_of(state["config"])
+    net.load_state_dict(state["model"])
+    net.eval()
+    kind = state["config"].get("network_input", "cade")
+    print("| set | map | all EPE / BMP3 | non-occluded BMP3 | depth-edge BMP3 |\n|---|---|---|---|---|")
+    for spec in args.sets:
+        name, _, folder = spec.partition("=")
+        rows: dict[str, list] = {}
+        for path in sorted(Path(folder).glob("*.npz")):
+            pair = np.load(path)
+            gt = pair["gt"].astype(np.float32)
+            regions = region_masks(gt, nonocc=pair["nonocc"] if pair["nonocc"].size else None)
+            found = candidates(net, network_input(pair["left"], kind), network_input(pair["right"], kind))
+            for row, disparity in maps(*found, gt).items():
+                s = score(disparity.astype(np.float32), gt, **regions)
+                rows.setdefault(row, []).append([s["epe_all"], s["bad3_all"], s.get("bad3_nonocc", np.nan),
+                                                 s.get("bad3_edge", np.nan)])
+        for row in ROWS:
+            v = np.mean(rows[row], 0)
+            print(f"| {name} | {row} | {v[0]:.2f} / {v[1]:.1f} | {v[2]:.1f} | {v[3]:.1f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
