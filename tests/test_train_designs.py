@@ -23,6 +23,7 @@ from cade_cli.train.net2d import normalised_correlation  # noqa: E402
 from cade_cli.train.net_iterative import CadeNetIterative  # noqa: E402
 from cade_cli.train.net_blocks import convex_upsample, convex_weights, expectation, hat_lookup  # noqa: E402
 from cade_cli.train.net_peak import peak_expectation  # noqa: E402
+from cade_cli.train.model import transferable  # noqa: E402
 from cade_cli.train.networks import ARCHITECTURES, network_of  # noqa: E402
 
 DESIGNS = ("cadenet-convex", "cadenet-iterative", "cadenet-peak")
@@ -34,6 +35,8 @@ def tiny(architecture: str) -> torch.nn.Module:
     torch.manual_seed(0)
     if architecture == "cadenet-iterative with 1/2 updates":  # the optional 1/2 level, off by default
         return CadeNetIterative(TINY["levels"], features=8, width=8, steps2=1)
+    if architecture == "cadenet-iterative with mask evidence":  # the mask sees the correlation at its candidates
+        return network_of({"architecture": "cadenet-iterative", **TINY, "mask_evidence": True})
     return network_of({"architecture": architecture, **TINY})
 
 
@@ -76,7 +79,7 @@ def test_each_design_is_registered_and_gives_full_resolution_maps(architecture):
     assert "disparity" not in net.eval()(left, right, refine=False)
 
 
-@pytest.mark.parametrize("architecture", DESIGNS)
+@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with mask evidence"))
 def test_a_few_steps_on_a_shifted_texture_lower_the_loss(architecture):
     rng = np.random.default_rng(3)
     pairs = [shifted_pair(rng, (32, 64), 6) for _ in range(2)]
@@ -96,7 +99,8 @@ def test_a_few_steps_on_a_shifted_texture_lower_the_loss(architecture):
     assert np.isfinite(losses).all() and min(losses[-3:]) < 0.8 * losses[0], losses
 
 
-@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with 1/2 updates"))
+@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with 1/2 updates",
+                                          "cadenet-iterative with mask evidence"))
 def test_the_export_agrees_with_torch_and_holds_no_grid_sample_or_data_gather(architecture, tmp_path: Path):
     net = trained_looking(tiny(architecture))
     path = tmp_path / "net.onnx"
@@ -108,6 +112,34 @@ def test_the_export_agrees_with_torch_and_holds_no_grid_sample_or_data_gather(ar
     made_by = {output: node.op_type for node in graph.node for output in node.output}
     # a Gather may only read a shape (the exporter's size arithmetic), never a feature map
     assert all(made_by.get(node.input[0]) == "Shape" for node in graph.node if node.op_type == "Gather")
+
+
+def test_the_mask_evidence_starts_as_the_checkpoint_it_widens_and_then_counts():
+    source = trained_looking(tiny("cadenet-iterative"))
+    widened = tiny("cadenet-iterative with mask evidence")
+    assert widened.design["mask_evidence"] and "mask_evidence" not in source.design
+    widened.load_state_dict(transferable(source.state_dict(), widened))  # fit --init-partial
+    widened.eval()
+    left, right = torch.rand(2, 1, 1, 48, 64)
+    with torch.no_grad():
+        assert torch.allclose(source(left, right)["disparity"], widened(left, right)["disparity"], atol=1e-5)
+        widened.mask.net[0][0].weight[:, -9 * 5:].normal_(0, 0.5)  # the evidence's inputs (4 groups + the distance, nine times)
+        assert not torch.allclose(source(left, right)["disparity"], widened(left, right)["disparity"])
+
+
+def test_the_mask_evidence_reads_the_correlation_at_each_neighbours_estimate():
+    net = tiny("cadenet-iterative with mask evidence").eval()
+    generator = torch.Generator().manual_seed(4)
+    volume = torch.rand(1, 8 * 4, 5, 6, generator=generator)  # 8 levels at 1/4, 4 groups, disparity-major
+    disparity = torch.zeros(1, 1, 5, 6)
+    disparity[..., 3:] = 5.0  # two surfaces: 0 px left of column 3, 5 px from it
+    evidence = net.evidence(disparity, volume)
+    assert evidence.shape == (1, 9 * 5, 5, 6)
+    at = volume.view(1, 8, 4, 5, 6)
+    # cell (2, 2): its right neighbour (index 5) lies on the 5 px surface, itself (index 4) on 0 px
+    assert torch.allclose(evidence[0, 4 * 4:5 * 4, 2, 2], at[0, 0, :, 2, 2])
+    assert torch.allclose(evidence[0, 5 * 4:6 * 4, 2, 2], at[0, 5, :, 2, 2])
+    assert evidence[0, 36 + 5, 2, 2] > 0 and evidence[0, 36 + 4, 2, 2] == 0
 
 
 def test_the_convex_upsampler_keeps_a_constant_and_its_weights_sum_to_one():

@@ -115,6 +115,8 @@ def fit(
     edge_weight: Annotated[float, typer.Option(min=0.0, help="Loss weight W at depth edges: pixels within 3 px "
                                                "of a ground-truth jump > 2 px weigh 1 + W in a weighted mean "
                                                "(0: the plain mean).")] = 0.0,
+    mask_evidence: Annotated[bool, typer.Option(help="cadenet-iterative: its convex mask also sees the 1/4 "
+                                                "correlation at the nine estimates it combines.")] = False,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
@@ -183,7 +185,7 @@ def fit(
                          half_channels=half_channels,
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
-                         thin=thin, floating=floating, asymmetric=asymmetric, edge_weight=edge_weight,
+                         thin=thin, floating=floating, asymmetric=asymmetric, edge_weight=edge_weight, mask_evidence=mask_evidence,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule,
                          selfsup_dir=str(selfsup_dir) if selfsup_dir else None,
                          selfsup_cache=str(selfsup_cache or default_selfsup_cache(out)) if selfsup_dir else None,

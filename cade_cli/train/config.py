@@ -112,6 +112,9 @@ class TrainConfig:
     than 2 px weigh 1 + W, the others 1 (:func:`~cade_cli.train.fit.edge_weights`), and each loss term
     is the weighted mean sum(w l) / sum(w): W moves the emphasis to the edges without changing the
     loss's scale (an error everywhere costs what it did). 0: the plain mean, as before."""
+    mask_evidence: bool = False
+    """cadenet-iterative only: its convex mask also sees the 1/4 correlation at each of the nine estimates it
+    combines (:meth:`~cade_cli.train.net_iterative.CadeNetIterative.evidence`). False: as before."""
     misaligned_offset: float = 1.0
     """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
     feature_consistency: float = 0.0

@@ -14,6 +14,11 @@ local re-matching design (HITNet's and RAFT-Stereo's idea, light enough for the 
              estimate predicts a correction (its exit starts at zero);
   upsample   learned convex upsampling from the last level to full resolution (x4 from 1/4, the
              mask from the left view's 1/4 and 1/2 features and band; x2 from 1/2 with ``steps2``).
+             With ``mask_evidence`` the x4 mask also sees, for each of the nine 1/4 estimates it
+             combines, the 1/4 correlation at that estimate in the pixel's own cell and how far it lies
+             from the cell's estimate: the matching evidence to pick one surface at a depth edge, which
+             the left view alone cannot give (docs/research/refinement.md, 2026-12-07). Its weights
+             start at zero, so a checkpoint without it loads (``--init-partial``) and computes the same.
 
 The 1/2 level is off by default (``steps2`` 0): its volume of levels/2 disparities at 1/2 cost
 more than the rest of the network (untrained ONNX at 720x496, 2 threads, CPU shared with
@@ -32,8 +37,8 @@ from torch import nn
 
 from cade_cli.train.model import DISPARITY_SCALE, conv2d
 from cade_cli.train.net2d import PRIOR_GAIN, Features2D, Residual2D, normalised_correlation
-from cade_cli.train.net_blocks import (ConvexMask, both_views, convex_upsample, expectation, hat_lookup, upsampled,
-                                       upsampling_guide)
+from cade_cli.train.net_blocks import (ConvexMask, both_views, convex_upsample, expectation, hat_lookup, neighbours3x3,
+                                       upsampled, upsampling_guide)
 
 DIVISOR = 8
 """Input height and width must be multiples of this (the 1/8 level)."""
@@ -83,16 +88,20 @@ class CadeNetIterative(nn.Module):
     divisor = DIVISOR
 
     def __init__(self, levels: int = 192, features: int = 24, groups: int = 4, width: int = 32, radius: int = 2,
-                 steps4: int = 2, steps2: int = 0, blocks: int = 2):
+                 steps4: int = 2, steps2: int = 0, blocks: int = 2, mask_evidence: bool = False):
         super().__init__()
         if levels % 16:
             raise ValueError(f"levels must be a multiple of 16, got {levels}")
         if features % groups or 16 % groups:
             raise ValueError(f"features ({features}) and 16 must be multiples of groups ({groups})")
         self.levels, self.groups, self.offsets = levels, groups, tuple(range(-radius, radius + 1))
-        self.steps4, self.steps2 = steps4, steps2
+        if mask_evidence and steps2:
+            raise ValueError("mask_evidence is for the x4 mask from 1/4 (steps2 0)")
+        self.steps4, self.steps2, self.mask_evidence = steps4, steps2, mask_evidence
         self.design = {"architecture": "cadenet-iterative", "features": features, "groups": groups, "width": width,
                        "radius": radius, "steps4": steps4, "steps2": steps2, "blocks": blocks}
+        if mask_evidence:  # the key only where it is on: earlier cards and configs stay as they were
+            self.design["mask_evidence"] = True
         self.features = PyramidFeatures(features, blocks)
         self.prior_gain = nn.Parameter(torch.tensor(PRIOR_GAIN))
         eighth = levels // 8
@@ -106,7 +115,8 @@ class CadeNetIterative(nn.Module):
         self.update4 = LocalUpdate(local, features, width)
         self.update2 = LocalUpdate(local, 16, max(8, width // 2)) if steps2 else None
         # the last level's estimate to full resolution: from 1/2 (x2), or from 1/4 (x4) without 1/2 updates
-        self.mask = (ConvexMask(16 + 4, 2, 16) if steps2 else ConvexMask(features + 4 * 16 + 16, 4, 32))
+        evidence = 9 * (groups + 1) if mask_evidence else 0
+        self.mask = (ConvexMask(16 + 4, 2, 16) if steps2 else ConvexMask(features + 4 * 16 + 16 + evidence, 4, 32))
 
     def describe(self, output: str) -> str:
         """The model card's one-line ``architecture``."""
@@ -116,18 +126,28 @@ class CadeNetIterative(nn.Module):
                 + (f"{design['steps4']} local re-matching updates at 1/4 and {design['steps2']} at 1/2 (correlation "
                    f"at the estimate +-{design['radius']} px, slices and hat weights) -> learned convex upsampling "
                    + ("x2" if design["steps2"] else "x4")
+                   + (" (its mask sees the correlation at its nine candidates)" if self.mask_evidence else "")
                    if output == "disparity" else "bilinear x8 (coarse output: re-matching not exported)"))
 
     def rematched(self, disparity: torch.Tensor, left: torch.Tensor, right: torch.Tensor, update: LocalUpdate,
-                  steps: int, factor: int) -> torch.Tensor:
+                  steps: int, factor: int) -> tuple[torch.Tensor, torch.Tensor]:
         """``disparity`` (px of the level of ``left``/``right``, 1/``factor`` resolution) after
-        ``steps`` local updates on that level's correlation (levels / ``factor`` disparities)."""
+        ``steps`` local updates on that level's correlation (levels / ``factor`` disparities), and
+        that correlation volume."""
         volume = normalised_correlation(left, right, self.levels // factor, self.groups)
         scale = DISPARITY_SCALE / factor
         for _ in range(steps):
             disparity = disparity + update(hat_lookup(volume, disparity, self.offsets, self.groups), left,
                                            disparity, scale)
-        return disparity
+        return disparity, volume
+
+    def evidence(self, disparity: torch.Tensor, volume: torch.Tensor) -> torch.Tensor:
+        """(B, 9 * (groups + 1), h, w): for each of the nine neighbours' estimates (px of the 1/4 level)
+        the correlation at it in this cell (``groups`` channels) and its distance from this cell's own
+        estimate (in :data:`~cade_cli.train.model.DISPARITY_SCALE` units of the level)."""
+        options = neighbours3x3(disparity)
+        reads = [hat_lookup(volume, options[:, k:k + 1], (0,), self.groups) for k in range(9)]
+        return torch.cat([*reads, (options - disparity) * (4 / DISPARITY_SCALE)], dim=1)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
         """left, right: (B, 1, H, W) -> ``coarse`` (the 1/8 soft-argmin, bilinearly upsampled),
@@ -144,13 +164,17 @@ class CadeNetIterative(nn.Module):
         size = left.shape[-2:]
         out = {"coarse": upsampled(mean, 8, size), "uncertainty": upsampled(spread, 8, size), "features": quarter_left}
         if refine:
-            quarter = self.rematched(upsampled(mean, 2), quarter_left, quarter_right, self.update4, self.steps4, 4)
+            quarter, volume = self.rematched(upsampled(mean, 2), quarter_left, quarter_right, self.update4,
+                                             self.steps4, 4)
             out["half"] = upsampled(quarter, 4, size)
             if not self.steps2:
-                mask = self.mask(upsampling_guide((quarter_left,), half_left, left))
+                guide = upsampling_guide((quarter_left,), half_left, left)
+                if self.mask_evidence:
+                    guide = torch.cat([guide, self.evidence(quarter, volume)], dim=1)
+                mask = self.mask(guide)
                 out["disparity"] = convex_upsample(quarter, mask, 4)
                 return out
-            half = self.rematched(upsampled(quarter, 2), half_left, half_right, self.update2, self.steps2, 2)
+            half, _ = self.rematched(upsampled(quarter, 2), half_left, half_right, self.update2, self.steps2, 2)
             mask = self.mask(torch.cat([half_left, F.pixel_unshuffle(left, 2)], dim=1))
             out["disparity"] = convex_upsample(half, mask, 2)
         return out
