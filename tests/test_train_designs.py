@@ -127,6 +127,15 @@ def test_the_mask_evidence_starts_as_the_checkpoint_it_widens_and_then_counts():
         assert not torch.allclose(source(left, right)["disparity"], widened(left, right)["disparity"])
 
 
+def test_the_mask_evidence_is_refused_for_another_design_before_anything_is_written(tmp_path: Path):
+    from cade_cli.train.config import TrainConfig
+
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match="cadenet-iterative"):
+        train(TrainConfig(out=str(out), textures=[], architecture="cadenet2d", mask_evidence=True, steps=1))
+    assert not out.exists()
+
+
 def test_the_mask_evidence_reads_the_correlation_at_each_neighbours_estimate():
     net = tiny("cadenet-iterative with mask evidence").eval()
     generator = torch.Generator().manual_seed(4)

@@ -93,8 +93,8 @@ def feature_consistency(net: torch.nn.Module, features: torch.Tensor, left_alt: 
     return (1.0 - F.cosine_similarity(features, alt, dim=1)).mean()
 
 
-def train(config: TrainConfig, *, resume: bool = True) -> Path:
-    """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
+def check(config: TrainConfig) -> None:
+    """Raise ValueError, before anything is written, for options that do not go together."""
     if config.training_mode not in TRAINING_MODES:
         raise ValueError(f"unknown training mode {config.training_mode!r}; choose one of {', '.join(TRAINING_MODES)}")
     parse_crop_schedule(config.crop_schedule)  # a malformed schedule fails before anything is written
@@ -104,6 +104,11 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         raise ValueError("the mask's evidence needs the cadenet-iterative architecture")
     if config.selfsup_share > 0 and not (config.selfsup_dir and config.selfsup_cache):
         raise ValueError("the self-supervised share needs selfsup_dir and selfsup_cache")
+
+
+def train(config: TrainConfig, *, resume: bool = True) -> Path:
+    """Train (or continue) the run in ``config.out``; returns the final checkpoint path."""
+    check(config)
     torch.set_num_threads(config.threads)
     device_type = torch.device(config.device).type
     if device_type == "cuda":
