@@ -56,16 +56,25 @@ def pair(path: Path) -> dict[str, np.ndarray]:
             "gt": cached["gt"].astype(np.float32), "nonocc": cached["nonocc"]}
 
 
+def options(x: dict[str, np.ndarray]) -> np.ndarray:
+    """(3, H, W): each pixel's candidates, its own value, the window's lowest and its highest."""
+    return np.stack([x["own"], x["low"], x["high"]])
+
+
+def errors(x: dict[str, np.ndarray]) -> np.ndarray:
+    """(3, H, W): each candidate's distance from the ground truth, inf where the truth is unknown."""
+    error = np.abs(options(x) - x["gt"][None])
+    return np.where(np.isfinite(error), error, np.inf)
+
+
 def labels(x: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) candidate index (0 own, 1 lowest, 2 highest) and (H, W) weight: 1 at the decisive edge
     pixels (the own value within 1 px, or off by more than 3 px with another candidate within 1 px)."""
-    error = np.abs(np.stack([x["own"], x["low"], x["high"]]) - x["gt"][None])
+    error = errors(x)
     known = np.isfinite(x["gt"]) & x["edge"]
-    error = np.where(np.isfinite(error), error, np.inf)
-    best = np.argmin(error, 0)
     keep = error[0] < 1.0
     switch = (error[0] > 3.0) & (error.min(0) < 1.0)
-    return np.where(keep, 0, best), (known & (keep | switch)).astype(np.float32)
+    return np.where(keep, 0, np.argmin(error, 0)), (known & (keep | switch)).astype(np.float32)
 
 
 def fetch(features: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
@@ -149,7 +158,7 @@ def pick(model: AssignmentHead, x: dict[str, np.ndarray], margin: float) -> np.n
     with torch.no_grad():
         probability = torch.softmax(model(*inputs(x))[0], 0).numpy()
     choice = np.where(probability.max(0) - probability[0] > margin, np.argmax(probability, 0), 0)
-    taken = np.take_along_axis(np.stack([x["own"], x["low"], x["high"]]), choice[None], 0)[0]
+    taken = np.take_along_axis(options(x), choice[None], 0)[0]
     return np.where(x["edge"], taken, x["own"])
 
 
@@ -158,10 +167,7 @@ def evaluate(model: AssignmentHead, name: str, pairs: list[dict]) -> dict[str, n
     rows: dict[str, list] = {}
     for x in pairs:
         regions = region_masks(x["gt"], nonocc=x["nonocc"] if x["nonocc"].size else None)
-        best, _ = labels(x)
-        error = np.abs(np.stack([x["own"], x["low"], x["high"]]) - x["gt"][None])
-        nearest = np.argmin(np.where(np.isfinite(error), error, np.inf), 0)
-        oracle = np.take_along_axis(np.stack([x["own"], x["low"], x["high"]]), nearest[None], 0)[0]
+        oracle = np.take_along_axis(options(x), np.argmin(errors(x), 0)[None], 0)[0]
         maps = {"filtered map": x["own"], "oracle": np.where(x["edge"], oracle, x["own"])}
         maps.update({f"head, margin {m}": pick(model, x, m) for m in MARGINS})
         for row, disparity in maps.items():
