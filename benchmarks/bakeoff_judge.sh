@@ -10,7 +10,7 @@
 # Sets: Middlebury 2014 Q and 2005 (cs), msir-outdoor (the real VIS/NIR array), KITTI 2012 and 2015 (the driving
 # set, cs). SETS (space-separated dataset names) and SCENES (comma-separated, one dataset) narrow it for a try.
 # Scores are deterministic for a given thread count (OMP_NUM_THREADS, as set by the caller); the CPU may be shared
-# with training; OUT_DIR keeps the card and one compact JSON per set. Speed is not measured here: benchmarks/design_speed.py --bakeoff on a quiet CPU. The exported
+# with training; OUT_DIR keeps the card and one compact gzipped JSON per set. Speed is not measured here: benchmarks/design_speed.py --bakeoff on a quiet CPU. The exported
 # ONNX stays out of git (.gitignore); its card (NAME.json, with its sha256) is kept with the scores.
 set -euo pipefail
 if [ $# -ne 2 ]; then
@@ -31,9 +31,9 @@ for set in ${SETS:-middlebury14 middlebury05 msir-outdoor kitti2012 kitti2015}; 
   .venv/bin/cade benchmark --dataset "$set" --data-dir "$data" --methods cade-network,cade --model "$out/$name.json" \
     "${protocol[@]}" "${scenes[@]}" --json "$out/$set.json" > "$out/$set.log" 2>&1 \
     || { echo "bakeoff_judge: $set failed, see $out/$set.log" >&2; exit 1; }
-  # kept compact, and only the JSON (benchmarks/bakeoff_table.py renders it): eight runs stay small in git
-  .venv/bin/python -c "import json, sys; p = sys.argv[1]; d = json.load(open(p)); json.dump(d, open(p, 'w'), separators=(',', ':'))" \
+  # kept compact and gzipped, and only the JSON (benchmarks/bakeoff_table.py renders it): the runs stay small in git
+  .venv/bin/python -c "import gzip, json, sys; p = sys.argv[1]; d = json.load(open(p)); gzip.open(p + '.gz', 'wt').write(json.dumps(d, separators=(',', ':')))" \
     "$out/$set.json"
-  rm "$out/$set.log"
-  echo "$set: $out/$set.json"
+  rm "$out/$set.json" "$out/$set.log"
+  echo "$set: $out/$set.json.gz"
 done

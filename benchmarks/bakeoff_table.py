@@ -7,7 +7,8 @@ and edge BMP3 against s/MP.
     benchmarks/bakeoff_table.py benchmarks/results/2026-11-28-bakeoff [--markdown T.md] \\
         [--speed RUN=S_PER_MP,...] [--plot P.png]
 
-A judged run is a folder holding the judge's ``<set>.json`` files (``cade benchmark --json``). The
+A judged run is a folder holding the judge's ``<set>.json.gz`` files (``cade benchmark --json``, gzipped to
+keep the records small in git; a plain ``<set>.json`` is read too). The
 figures are the benchmark's own summary means (every record of the set, cs protocol where it has one);
 a set or region a run lacks shows as "–".
 """
@@ -15,6 +16,7 @@ a set or region a run lacks shows as "–".
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 from pathlib import Path
 
@@ -23,12 +25,21 @@ REGIONS = ("all", "nonocc", "edge", "occ")
 METHODS = ("cade-network", "cade")
 
 
-def summary_scores(path: Path, method: str) -> dict[str, float] | None:
+def record_file(run: Path, name: str) -> Path | None:
+    """The judge's record of set ``name`` in a judged run's folder, gzipped or plain; None when absent."""
+    for path in (run / f"{name}.json.gz", run / f"{name}.json"):
+        if path.is_file():
+            return path
+    return None
+
+
+def summary_scores(path: Path | None, method: str) -> dict[str, float] | None:
     """The summary scores of ``method`` (``cade-network`` or ``cade``, whatever model it names) in one
-    ``cade benchmark --json`` file; None when the file or the method is not there."""
-    if not path.is_file():
+    ``cade benchmark --json`` file (gzipped or plain); None when the file or the method is not there."""
+    if path is None:
         return None
-    for row in json.loads(path.read_text())["summary"]:
+    text = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+    for row in json.loads(text)["summary"]:
         if row["method"].split(":")[0] == method:
             return row["scores"]
     return None
@@ -43,11 +54,11 @@ def cell(scores: dict[str, float] | None, region: str) -> str:
 def table(judged: Path) -> tuple[str, dict[str, dict[str, float]]]:
     """The Markdown tables (one per set and method) and, per run, the whole matcher's Middlebury 2014 scores."""
     runs = sorted(path for path in judged.iterdir()
-                  if path.is_dir() and any((path / f"{name}.json").is_file() for name in SETS))
+                  if path.is_dir() and any(record_file(path, name) for name in SETS))
     lines, middlebury = [], {}
     for name in SETS:
         for method in METHODS:
-            rows = [(run.name, summary_scores(run / f"{name}.json", method)) for run in runs]
+            rows = [(run.name, summary_scores(record_file(run, name), method)) for run in runs]
             if all(scores is None for _, scores in rows):
                 continue
             lines += [f"\n### {name}, {method} (EPE px / BMP3 %)\n", "| run | " + " | ".join(REGIONS) + " |",

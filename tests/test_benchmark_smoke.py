@@ -6,6 +6,7 @@ once for all of them."""
 
 from __future__ import annotations
 
+import gzip
 import json
 import os
 import re
@@ -118,13 +119,14 @@ def test_bakeoff_judge_scores_a_run_by_region_through_the_cli(tmp_path):
                             capture_output=True, text=True, env={**os.environ, "SETS": "middlebury14",
                                                                  "SCENES": "ArtL", "OMP_NUM_THREADS": "1"})
     assert judged.returncode == 0, judged.stderr
-    records = json.loads((tmp_path / "out" / "middlebury14.json").read_text())["records"]
+    assert not (tmp_path / "out" / "middlebury14.json").exists()  # kept gzipped only
+    judged_set = json.loads(gzip.decompress((tmp_path / "out" / "middlebury14.json.gz").read_bytes()))
+    records = judged_set["records"]
     methods = {record["method"] for record in records}
     assert {"cade-network", "cade"} <= {method.split(":")[0] for method in methods}
     assert all({"bad3_all", "bad3_nonocc", "bad3_edge", "bad3_occ"} <= set(record["scores"]) for record in records)
     # the bake-off table reads the judged folder: the whole matcher's summary means, by region, and the plot
-    summary = next(row["scores"] for row in json.loads((tmp_path / "out" / "middlebury14.json").read_text())["summary"]
-                   if row["method"].split(":")[0] == "cade")
+    summary = next(row["scores"] for row in judged_set["summary"] if row["method"].split(":")[0] == "cade")
     table = runpy.run_path(str(BENCHMARKS / "bakeoff_table.py"))
     assert table["main"]([str(tmp_path), "--markdown", str(tmp_path / "t.md"), "--speed", "out=1.5",
                           "--plot", str(tmp_path / "p.png")]) == 0
