@@ -30,10 +30,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from cade_cli.evaluation.metrics import score
 from cade_cli.evaluation.regions import region_masks
 from cade_cli.matching.edges import snap_to_edges
 from cade_cli.spectral import CONTRAST_FLOOR, color_agnostic
+from cade_cli.train.probe_table import HEADER, RegionTable
 
 RADIUS = 4
 """Half-side of the window whose lowest and highest values are the other candidates, px."""
@@ -164,20 +164,15 @@ def pick(model: AssignmentHead, x: dict[str, np.ndarray], margin: float) -> np.n
 
 def evaluate(model: AssignmentHead, name: str, pairs: list[dict]) -> dict[str, np.ndarray]:
     """Row name -> (EPE all, BMP3 all, BMP3 non-occluded, BMP3 edge), the mean over ``pairs``; printed."""
-    rows: dict[str, list] = {}
+    table = RegionTable(name)
     for x in pairs:
         regions = region_masks(x["gt"], nonocc=x["nonocc"] if x["nonocc"].size else None)
         oracle = np.take_along_axis(options(x), np.argmin(errors(x), 0)[None], 0)[0]
         maps = {"filtered map": x["own"], "oracle": np.where(x["edge"], oracle, x["own"])}
         maps.update({f"head, margin {m}": pick(model, x, m) for m in MARGINS})
         for row, disparity in maps.items():
-            s = score(disparity, x["gt"], **regions)
-            rows.setdefault(row, []).append([s["epe_all"], s["bad3_all"], s.get("bad3_nonocc", np.nan),
-                                             s.get("bad3_edge", np.nan)])
-    means = {row: np.mean(values, 0) for row, values in rows.items()}
-    for row, v in means.items():
-        print(f"| {name} | {row} | {v[0]:.2f} / {v[1]:.1f} | {v[2]:.1f} | {v[3]:.1f} |", flush=True)
-    return means
+            table.add(row, disparity, x["gt"], regions)
+    return table.print()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -193,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"no .npz pairs in {args.train}")
     model = AssignmentHead()
     fit(model, train, args.steps, np.random.default_rng(args.seed))
-    print("| set | map | all EPE / BMP3 | non-occluded BMP3 | depth-edge BMP3 |\n|---|---|---|---|---|")
+    print(HEADER)
     for spec in args.evaluate:
         name, _, folder = spec.partition("=")
         evaluate(model, name, [pair(p) for p in sorted(Path(folder).glob("*.npz"))])

@@ -26,13 +26,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from cade_cli.evaluation.metrics import score
 from cade_cli.evaluation.regions import region_masks
 from cade_cli.matching.network import pad_to_divisor
 from cade_cli.spectral import network_input
-from cade_cli.train import net_iterative
 from cade_cli.train.net_blocks import convex_weights, neighbours3x3
 from cade_cli.train.networks import network_of
+from cade_cli.train.probe_table import HEADER, RegionTable
 
 ROWS = ("network", "hard pick", "oracle")
 
@@ -42,23 +41,13 @@ def candidates(net: torch.nn.Module, left: np.ndarray, right: np.ndarray) -> tup
     convex upsampling (full-resolution px) and the (H, W) index of the one its mask weighs most."""
     height, width = left.shape
     padded = [torch.from_numpy(pad_to_divisor(band, net.divisor)[0])[None, None] for band in (left, right)]
-    seen = {}
-    upsample = net_iterative.convex_upsample
-
-    def keep(disparity, mask_logits, factor):
-        seen.update(disparity=disparity, mask=mask_logits, factor=factor)
-        return upsample(disparity, mask_logits, factor)
-
-    net_iterative.convex_upsample = keep
-    try:
-        with torch.no_grad():
-            disparity = net(*padded)["disparity"][0, 0, :height, :width].numpy()
-    finally:
-        net_iterative.convex_upsample = upsample
-    factor = seen["factor"]
-    options = factor * neighbours3x3(seen["disparity"])  # (1, 9, h, w)
+    with torch.no_grad():
+        out = net(*padded)
+    disparity = out["disparity"][0, 0, :height, :width].numpy()
+    factor = 4  # the x4 mask from 1/4: the campaign's design (steps2 0)
+    options = factor * neighbours3x3(out["quarter"])  # (1, 9, h, w)
     options = options.repeat_interleave(factor, 2).repeat_interleave(factor, 3)[0, :, :height, :width].numpy()
-    heaviest = convex_weights(seen["mask"], factor).argmax(1).float()  # (1, factor², h, w)
+    heaviest = convex_weights(out["mask"], factor).argmax(1).float()  # (1, factor², h, w)
     heaviest = F.pixel_shuffle(heaviest, factor)[0, 0, :height, :width].numpy().astype(np.int64)
     return disparity, options, heaviest
 
@@ -84,22 +73,18 @@ def main(argv: list[str] | None = None) -> int:
     net.load_state_dict(state["model"])
     net.eval()
     kind = state["config"].get("network_input", "cade")
-    print("| set | map | all EPE / BMP3 | non-occluded BMP3 | depth-edge BMP3 |\n|---|---|---|---|---|")
+    print(HEADER)
     for spec in args.sets:
         name, _, folder = spec.partition("=")
-        rows: dict[str, list] = {}
+        table = RegionTable(name)
         for path in sorted(Path(folder).glob("*.npz")):
             pair = np.load(path)
             gt = pair["gt"].astype(np.float32)
             regions = region_masks(gt, nonocc=pair["nonocc"] if pair["nonocc"].size else None)
             found = candidates(net, network_input(pair["left"], kind), network_input(pair["right"], kind))
             for row, disparity in maps(*found, gt).items():
-                s = score(disparity.astype(np.float32), gt, **regions)
-                rows.setdefault(row, []).append([s["epe_all"], s["bad3_all"], s.get("bad3_nonocc", np.nan),
-                                                 s.get("bad3_edge", np.nan)])
-        for row in ROWS:
-            v = np.mean(rows[row], 0)
-            print(f"| {name} | {row} | {v[0]:.2f} / {v[1]:.1f} | {v[2]:.1f} | {v[3]:.1f} |", flush=True)
+                table.add(row, disparity, gt, regions)
+        table.print()
     return 0
 
 

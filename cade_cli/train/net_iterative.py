@@ -153,7 +153,8 @@ class CadeNetIterative(nn.Module):
         """left, right: (B, 1, H, W) -> ``coarse`` (the 1/8 soft-argmin, bilinearly upsampled),
         ``uncertainty`` (px), with ``refine`` ``half`` (after the 1/4 updates, upsampled) and
         ``disparity`` (the last level's estimate, convex-upsampled); all (B, 1, H, W), full-resolution
-        px; and the left view's 1/4 ``features``."""
+        px; and the left view's 1/4 ``features``. With the x4 mask from 1/4 (``steps2`` 0) also what that mask
+        combines: the 1/4 estimate ``quarter`` (1/4 px) and the mask's logits ``mask`` (B, 9·16, H/4, W/4)."""
         (half_left, half_right), (quarter_left, quarter_right), (eighth_left, eighth_right) = both_views(
             self.features, left, right, self.training)
         eighth = self.levels // 8
@@ -173,6 +174,7 @@ class CadeNetIterative(nn.Module):
                     guide = torch.cat([guide, self.evidence(quarter, volume)], dim=1)
                 mask = self.mask(guide)
                 out["disparity"] = convex_upsample(quarter, mask, 4)
+                out.update(quarter=quarter, mask=mask)  # what it combines, for cade_cli.train.mask_headroom
                 return out
             half, _ = self.rematched(upsampled(quarter, 2), half_left, half_right, self.update2, self.steps2, 2)
             mask = self.mask(torch.cat([half_left, F.pixel_unshuffle(left, 2)], dim=1))
