@@ -1,10 +1,12 @@
 """How much a better convex mask could give: is the right surface among the convex upsampler's nine candidates?
 (Accuracy V, docs/research/refinement.md, 2026-12-07, later.)
 
-    .venv/bin/python -m cade_cli.train.mask_headroom CHECKPOINT NAME=DIR [NAME=DIR ...]
+    .venv/bin/python -m cade_cli.train.mask_headroom CHECKPOINT SET [SET ...] [--data-dir DIR]
 
 CHECKPOINT is a cadenet-iterative run's checkpoint (any form, e.g. ``init.pt`` of
-runs/campaign-2026-12-07-extended: the first campaign's last weights); each DIR holds one .npz per pair as
+runs/campaign-2026-12-07-extended: the first campaign's last weights). A SET is a dataset of ``cade benchmark``
+(``middlebury14``, ``middlebury05``, ...: every scene of it under ``--data-dir``, each of the six cross-spectral
+tasks, as ``--protocol cs`` makes them), or NAME=DIR with DIR a folder of one .npz per pair as
 ``benchmarks/edge_headroom.py --cache DIR`` writes them (raw bands, ground truth, non-occluded mask). The network
 alone runs on each pair (its input transform, padded as the runtime pads). Its last stage makes each
 full-resolution pixel a convex combination of the nine 1/4-resolution estimates around its cell. Rows (mean over
@@ -20,12 +22,15 @@ pairs, EPE px / BMP3 % on all pixels, BMP3 on the non-occluded and depth-edge on
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from cade_cli.data.catalogue import get_dataset
+from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.evaluation.regions import region_masks
 from cade_cli.matching.network import pad_to_divisor
 from cade_cli.spectral import network_input
@@ -61,10 +66,24 @@ def maps(disparity: np.ndarray, options: np.ndarray, heaviest: np.ndarray, gt: n
             "oracle": np.take_along_axis(options, nearest[None], 0)[0]}
 
 
+def pairs(spec: str, data_dir: Path) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]]:
+    """(left band, right band, ground truth, non-occluded mask or None) of each pair of one SET argument."""
+    name, _, folder = spec.partition("=")
+    if folder:
+        for path in sorted(Path(folder).glob("*.npz")):
+            pair = np.load(path)
+            yield pair["left"], pair["right"], pair["gt"], pair["nonocc"] if pair["nonocc"].size else None
+        return
+    for scene in get_dataset(name)(data_dir):
+        for task in get_protocol("cs").tasks:
+            yield *task.bands(scene.left, scene.right), scene.disparity, scene.nonocc
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", type=Path)
-    parser.add_argument("sets", nargs="+", metavar="NAME=DIR")
+    parser.add_argument("sets", nargs="+", metavar="SET", help="a dataset name, or NAME=DIR of cached pairs")
+    parser.add_argument("--data-dir", type=Path, default=Path("../shared/data"), help="where the datasets lie")
     args = parser.parse_args(argv)
     state = torch.load(args.checkpoint, map_location="cpu", weights_only=False)
     if state["config"].get("architecture") != "cadenet-iterative":
@@ -75,13 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     kind = state["config"].get("network_input", "cade")
     print(HEADER)
     for spec in args.sets:
-        name, _, folder = spec.partition("=")
-        table = RegionTable(name)
-        for path in sorted(Path(folder).glob("*.npz")):
-            pair = np.load(path)
-            gt = pair["gt"].astype(np.float32)
-            regions = region_masks(gt, nonocc=pair["nonocc"] if pair["nonocc"].size else None)
-            found = candidates(net, network_input(pair["left"], kind), network_input(pair["right"], kind))
+        table = RegionTable(spec.partition("=")[0])
+        for left, right, gt, nonocc in pairs(spec, args.data_dir):
+            gt = gt.astype(np.float32)
+            regions = region_masks(gt, nonocc=nonocc)
+            found = candidates(net, network_input(left, kind), network_input(right, kind))
             for row, disparity in maps(*found, gt).items():
                 table.add(row, disparity, gt, regions)
         table.print()
