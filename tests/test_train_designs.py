@@ -18,7 +18,7 @@ from synthetic import smooth_texture  # noqa: E402
 from cade_cli.io.disparity import read_disparity  # noqa: E402
 from cade_cli.train.config import TrainConfig  # noqa: E402
 from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  # noqa: E402
-from cade_cli.train.fit import loss_terms, train  # noqa: E402
+from cade_cli.train.fit import loss_terms, pick_loss, train  # noqa: E402
 from cade_cli.train.net2d import normalised_correlation  # noqa: E402
 from cade_cli.train.net_iterative import CadeNetIterative  # noqa: E402
 from cade_cli.train.net_blocks import convex_upsample, convex_weights, expectation, hat_lookup  # noqa: E402
@@ -170,6 +170,64 @@ def test_the_convex_upsampler_takes_the_neighbour_its_mask_picks_so_an_edge_stay
     assert fine.shape == (8, 8)
     assert torch.allclose(fine[:, :3], torch.zeros(8, 3), atol=1e-4)  # coarse column 1's left half stays 0 ...
     assert torch.allclose(fine[:, 3:], torch.full((8, 5), 10.0), atol=1e-4)  # ... its right half takes 10: no blend
+
+
+def _edge_cell(truth_value: float):
+    """A 1/4 estimate with a depth edge (0 px left of coarse column 2, 2.5 px from it: 10 px at full
+    resolution), a uniform mask and a constant full-resolution truth ``truth_value``."""
+    quarter = torch.zeros(1, 1, 3, 4)
+    quarter[..., 2:] = 2.5
+    return quarter, torch.zeros(1, 9 * 16, 3, 4, requires_grad=True), torch.full((1, 1, 12, 16), truth_value)
+
+
+def test_the_pick_loss_is_the_truths_likelihood_under_the_masks_mixture():
+    quarter, mask, target = _edge_cell(10.0)
+    target[..., 0, 0] = float("inf")  # no ground truth here: left out, and no NaN in the gradient
+    loss = pick_loss(quarter, mask, target, levels=32)
+    # by hand, for the fine pixel (row 0, column 5) of coarse cell (0, 1): its nine neighbours are
+    # coarse columns 0, 1, 2 of rows -1, 0, 1 (replicated at the border) at 0, 0, 10 px
+    options = np.array([0, 0, 10] * 3, float)
+    by_hand = -np.log(np.mean(np.exp(-np.abs(options - 10.0))))
+    per_pixel = -torch.logsumexp(torch.log(torch.full((9,), 1 / 9)) - (torch.tensor(options) - 10).abs(), 0)
+    assert abs(per_pixel.item() - by_hand) < 1e-6
+    assert torch.isfinite(loss)
+    loss.backward()
+    assert torch.isfinite(mask.grad).all()
+    # coarse cell (0, 1)'s fine pixels: the gradient raises the right neighbours' weights (at 10 px, the truth)
+    # and lowers the others'
+    grad = mask.grad.view(1, 9, 16, 3, 4)[0, :, :, 0, 1]
+    assert (grad[[2, 5, 8]] < 0).all() and (grad[[0, 1, 3, 4, 6, 7]] > 0).all()
+
+
+def test_the_pick_loss_moves_a_confidently_wrong_mask_where_the_blends_l1_loss_hardly_does():
+    quarter, _, target = _edge_cell(10.0)
+    # coarse cell column 1 (at 0 px, truth 10 px) picks its left neighbour with confidence: the wrong surface
+    logits = torch.full((1, 9, 16, 3, 4), -4.0)
+    logits[:, 3] = 4.0
+    logits = logits.view(1, 144, 3, 4).requires_grad_()
+    blend_l1 = torch.nn.functional.smooth_l1_loss(convex_upsample(quarter, logits, 4), target)
+    l1_grad = torch.autograd.grad(blend_l1, logits)[0].view(1, 9, 16, 3, 4)[0, [2, 5, 8], :, 0, 1]
+    pick_grad = torch.autograd.grad(pick_loss(quarter, logits, target, 32), logits)[0].view(1, 9, 16, 3, 4)
+    pick_grad = pick_grad[0, [2, 5, 8], :, 0, 1]
+    # both raise the right neighbours' logits (at 10 px, the truth): a negative gradient ...
+    assert (l1_grad < 0).all() and (pick_grad < 0).all()
+    # ... but the blend's saturated softmax passes the L1 loss's push on at the weight the right candidates
+    # have (about e^-8 each), and the pick loss at their share of the truth's likelihood (about a third each)
+    assert pick_grad.abs().min() > 50 * l1_grad.abs().max()  # about 100 times here
+
+
+def test_the_pick_loss_trains_the_iterative_design_and_is_refused_for_another_before_anything_is_written(
+        tmp_path: Path):
+    small = dict(textures=[], steps=2, batch=1, height=64, width=128, levels=32, workers=0, validate_every=10,
+                 features2d=8, width2d=8)
+    with_pick = train(TrainConfig(out=str(tmp_path / "pick"), architecture="cadenet-iterative", mask_pick=0.5,
+                                  **small))
+    state = torch.load(with_pick, map_location="cpu", weights_only=False)
+    assert state["step"] == 2 and state["config"]["mask_pick"] == 0.5
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match="cadenet-iterative"):
+        train(TrainConfig(out=str(out), textures=[], architecture="cadenet2d", mask_pick=1.0, steps=1))
+    assert not out.exists()
 
 
 def test_the_hat_lookup_equals_a_correlation_with_the_right_view_shifted_bilinearly():

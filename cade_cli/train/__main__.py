@@ -117,6 +117,9 @@ def fit(
                                                "(0: the plain mean).")] = 0.0,
     mask_evidence: Annotated[bool, typer.Option(help="cadenet-iterative: its convex mask also sees the 1/4 "
                                                 "correlation at the nine estimates it combines.")] = False,
+    mask_pick: Annotated[float, typer.Option(min=0.0, help="cadenet-iterative: weight of its convex mask's pick "
+                                             "loss (the truth's likelihood under the mask's mixture of its nine "
+                                             "candidates; 0: none).")] = 0.0,
     misaligned_offset: Annotated[float, typer.Option(min=0.0, help="Largest vertical offset of a misaligned pair, "
                                                      "px.")] = 1.0,
     feature_consistency: Annotated[float, typer.Option(min=0.0, help="Weight of the cross-spectral feature-"
@@ -186,6 +189,7 @@ def fit(
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
                          thin=thin, floating=floating, asymmetric=asymmetric, edge_weight=edge_weight, mask_evidence=mask_evidence,
+                         mask_pick=mask_pick,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule,
                          selfsup_dir=str(selfsup_dir) if selfsup_dir else None,
                          selfsup_cache=str(selfsup_cache or default_selfsup_cache(out)) if selfsup_dir else None,

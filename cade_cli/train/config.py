@@ -115,6 +115,10 @@ class TrainConfig:
     mask_evidence: bool = False
     """cadenet-iterative only: its convex mask also sees the 1/4 correlation at each of the nine estimates it
     combines (:meth:`~cade_cli.train.net_iterative.CadeNetIterative.evidence`). False: as before."""
+    mask_pick: float = 0.0
+    """cadenet-iterative only: weight of the convex mask's pick loss (:func:`~cade_cli.train.fit.pick_loss`: the
+    truth's negative log-likelihood under the mask's mixture of its nine candidates), added to the supervised
+    loss, which scores only the mask's blend. 0: none, as before."""
     misaligned_offset: float = 1.0
     """The misaligned pairs' largest vertical offset, px (:class:`~cade_cli.train.scenes.Misalignment`)."""
     feature_consistency: float = 0.0

@@ -22,6 +22,7 @@ from cade_cli.train.batches import GeneratedBatches, parse_crop_schedule
 from cade_cli.train.checkpoints import restore, save_checkpoint
 from cade_cli.train.config import TrainConfig
 from cade_cli.train.model import parameter_count
+from cade_cli.train.net_blocks import neighbours3x3
 from cade_cli.train.networks import network_of
 from cade_cli.train.pairs import TRAINING_MODES
 from cade_cli.train.selfsup_loss import selfsup_loss
@@ -63,6 +64,26 @@ def loss_terms(out: dict[str, torch.Tensor], target: torch.Tensor, levels: int, 
     return fine + coarse_weight * coarse, mask
 
 
+def pick_loss(quarter: torch.Tensor, mask_logits: torch.Tensor, target: torch.Tensor, levels: int, *,
+              factor: int = 4, scale: float = 1.0) -> torch.Tensor:
+    """The convex mask's pick loss: for each full-resolution pixel with ground truth in range, the negative
+    log-likelihood of the truth under the mixture the mask puts on its cell's nine 1/4 candidates (each a
+    Laplacian of ``scale`` px about the candidate, weighted as :func:`~cade_cli.train.net_blocks.convex_upsample`
+    weighs it), averaged. The blend's L1 loss is met as well by two surfaces' average as by the right one where
+    the candidates agree on neither; this one is low only where the mask puts its weight on a candidate near the
+    truth, so it teaches the mask to pick. The candidates are detached: it trains the mask, not the estimate.
+    ``quarter`` (B, 1, h, w), px at 1/4; ``mask_logits`` (B, 9·factor², h, w); ``target`` (B, 1, h·factor,
+    w·factor), px."""
+    batch, _, height, width = quarter.shape
+    log_weights = F.log_softmax(mask_logits.float().view(batch, 9, factor * factor, height, width), dim=1)
+    options = factor * neighbours3x3(quarter.detach().float()).unsqueeze(2)  # (B, 9, 1, h, w)
+    truth = F.pixel_unshuffle(target, factor).unsqueeze(1)  # (B, 1, factor², h, w)
+    valid = (truth >= 0) & (truth < levels)
+    truth = torch.where(valid, truth, torch.zeros_like(truth))  # no inf in the sum, whose gradient would be NaN
+    log_likelihood = torch.logsumexp(log_weights - (options - truth).abs() / scale, dim=1, keepdim=True)
+    return -log_likelihood[valid].mean() if bool(valid.any()) else log_likelihood.sum() * 0
+
+
 def edge_weights(target: torch.Tensor, valid: torch.Tensor, weight: float, *, jump: float = EDGE_JUMP,
                  radius: int = EDGE_RADIUS) -> torch.Tensor:
     """(B, 1, H, W) per-pixel loss weights: 1 + ``weight`` within ``radius`` px (Euclidean) of a jump of
@@ -102,6 +123,8 @@ def check(config: TrainConfig) -> None:
         raise ValueError("the feature-consistency loss needs the cadenet2d architecture")
     if config.mask_evidence and config.architecture != "cadenet-iterative":
         raise ValueError("the mask's evidence needs the cadenet-iterative architecture")
+    if config.mask_pick > 0 and config.architecture != "cadenet-iterative":
+        raise ValueError("the mask's pick loss needs the cadenet-iterative architecture")
     if config.selfsup_share > 0 and not (config.selfsup_dir and config.selfsup_cache):
         raise ValueError("the self-supervised share needs selfsup_dir and selfsup_cache")
 
@@ -203,6 +226,8 @@ def optimise(net: torch.nn.Module, optimizer, batch: dict, config: TrainConfig,
         out = net(batch["left"], batch["right"])
         out = {key: value.float() for key, value in out.items()}
         loss, mask = loss_terms(out, batch["disparity"], config.levels, config.coarse_weight, config.edge_weight)
+        if config.mask_pick > 0:
+            loss = loss + config.mask_pick * pick_loss(out["quarter"], out["mask"], batch["disparity"], config.levels)
         if config.feature_consistency > 0:
             loss = loss + config.feature_consistency * feature_consistency(net, out["features"], batch["left_alt"])
         chosen = batch["selfsup"] if "selfsup" in batch else None
