@@ -9,7 +9,10 @@
 # --out init.pt --weights-only`), a new cosine over 40,000 more steps from half the first peak (5e-4), and
 # another seed (53) so that its batches are not the first run's again (docs/research/network-design.md,
 # "2026-12-07: the campaign's end"); and --asymmetric 0.3, the lever judged the same day
-# (docs/research/training-data.md, 2026-12-07).
+# (docs/research/training-data.md, 2026-12-07). And --mask-evidence (its convex mask also sees the 1/4 correlation at
+# its nine candidates), judged the same day against its control at equal steps (docs/research/refinement.md,
+# 2026-12-07, later: the network alone's depth-edge errors lower on every set), with --init-partial: its new inputs
+# start at zero, so at step 0 it computes what init.pt did.
 #
 #   nohup nice runs/campaign-2026-12-07-extended/command.sh >> runs/campaign-2026-12-07-extended/stdout.log 2>&1 &
 # resumes where it stopped (from last.pt; init.pt is read at step 0 only); a lent GPU continues it
@@ -20,4 +23,4 @@ data=${DATA:-../shared/data}
 export DEVICE_FLAGS=${DEVICE_FLAGS:-"--device cpu --threads 2 --workers 0 --validate-every 1000 --validate-rgb --data-dir $data"}
 exec "$here/../bakeoff.sh" "$run" --architecture cadenet-iterative \
   --features2d 24 --width2d 32 --floating 0.5 --init "$here/init.pt" --steps 40000 --lr 5e-4 --seed 53 \
-  --asymmetric 0.3 "$@"
+  --asymmetric 0.3 --mask-evidence --init-partial "$@"
