@@ -80,6 +80,8 @@ ITERATIVE = {"architecture": "cadenet-iterative", "levels": 192, "features2d": 2
 ITERATIVE_TWINS = {
     "control: CadeNet2D, the fast design (cade-v13)": FAST,
     "cadenet-iterative f24 w32 (the campaign's, runs/campaign-2026-12-06-iterative)": ITERATIVE,
+    "cadenet-iterative f24 w32 with the mask's evidence (the longer schedule's, since 2026-12-07)":
+        {**ITERATIVE, "mask_evidence": True},
     "cadenet-iterative f16 w32": {**ITERATIVE, "features2d": 16},
     "cadenet-iterative f16 w24": {**ITERATIVE, "features2d": 16, "width2d": 24},
     "cadenet-iterative f16 w16": {**ITERATIVE, "features2d": 16, "width2d": 16},
