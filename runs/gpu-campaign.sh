@@ -10,7 +10,8 @@
 #   make gpu-data      # here, first: .gpu-pack/data.tar
 #   device run, carry [".gpu-pack", "runs/<the campaign>"], timeout_s 600:  DEADLINE_S=545 bash runs/gpu-campaign.sh 2>&1 | tee $OUT/log.txt
 # Tried on the CPU with (2 steps past a scratch copy's checkpoint, then the bake-off's runs at 2 steps each; on
-# 2026-12-07 with the longer schedule's folder, which holds only init.pt, and DEADLINE_S=140: 2 steps from init.pt):
+# 2026-12-07 with the longer schedule's folder, which holds only init.pt, and DEADLINE_S=140: 2 steps from init.pt;
+# again the same day once it trains with --mask-evidence --init-partial, DEADLINE_S=200: the same):
 #   cp -r runs/campaign-2026-12-06-iterative /tmp/try && CAMPAIGN=campaign-2026-12-06-iterative DEV="--device cpu --threads 2 --workers 1 --validate-every 100000" \
 #     STEPS=2 PY=.venv/bin/python DATA_DIR=../shared/data OUT=/tmp/try-out RUN_DIR=/tmp/try DEADLINE_S=400 bash runs/gpu-campaign.sh
 export PYTHONUNBUFFERED=1
