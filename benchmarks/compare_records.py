@@ -6,7 +6,7 @@ a record only in one file, a metric only in one record, or a score that differs 
 than ``--tolerance`` is printed. Records of OLD outside NEW's scenes / methods / protocols /
 preprocessing are not reported missing (compare a partial run against a full one)::
 
-    .venv/bin/python benchmarks/compare_records.py docs/bench/middlebury05.json new05.json [--tolerance 0]
+    .venv/bin/python benchmarks/compare_records.py docs/bench/middlebury05.json.gz new05.json [--tolerance 0]
 
 A run made before a score was added (the region scores ``*_edge``, ``*_occ`` of 2026-11-28) compares
 equal on the scores both carry with ``--new-metrics``. Exit status 0 when nothing differs, 1 otherwise.
@@ -15,6 +15,7 @@ equal on the scores both carry with ``--new-metrics``. Exit status 0 when nothin
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import math
 import sys
@@ -24,8 +25,10 @@ KEY = ("dataset", "scene", "protocol", "method", "preprocess", "task")
 
 
 def records_by_key(path: Path) -> tuple[dict, dict[tuple, dict[str, float]]]:
-    """(config, {record key: scores}) of a benchmark JSON file; degradation "none" when absent."""
-    data = json.loads(Path(path).read_text())
+    """(config, {record key: scores}) of a benchmark JSON file, plain or gzipped (``.json.gz``, as
+    docs/bench keeps its largest); degradation "none" when absent."""
+    raw = Path(path).read_bytes()
+    data = json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
     records = {}
     for record in data["records"]:
         key = (*(record[name] for name in KEY), record.get("degradation", "none"))

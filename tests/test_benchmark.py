@@ -4,6 +4,7 @@ scene, task subsets, degraded right bands, timing, deterministic parallel runs."
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import json
 from pathlib import Path
 
@@ -218,6 +219,9 @@ def test_compare_records_reports_each_changed_score(folder_dataset, oracle, tmp_
     new.write_text(json.dumps(data))
     assert compare.main([str(old), str(old)]) == 0
     assert compare.main([str(old), str(new)]) == 1
+    packed = tmp_path / "old.json.gz"  # docs/bench keeps its largest records gzipped
+    packed.write_bytes(gzip.compress(old.read_bytes()))
+    assert compare.main([str(packed), str(old)]) == 0 and compare.main([str(packed), str(new)]) == 1
     lines = [line for line in compare.differences(*[compare.records_by_key(p)[1] for p in (old, new)],
                                                   data["config"], 0.0)]
     assert lines == ["folder / first / cs / oracle / none / G>B / none: epe_all 0.0 -> 0.25 (+0.25)"]
