@@ -8,7 +8,7 @@ and edge BMP3 against s/MP.
         [--speed RUN=S_PER_MP,...] [--plot P.png]
 
 A judged run is a folder holding the judge's ``<set>.json.gz`` files (``cade benchmark --json``, gzipped to
-keep the records small in git; a plain ``<set>.json`` is read too). The
+keep the records small in git). The
 figures are the benchmark's own summary means (every record of the set, cs protocol where it has one);
 a set or region a run lacks shows as "–".
 """
@@ -25,21 +25,17 @@ REGIONS = ("all", "nonocc", "edge", "occ")
 METHODS = ("cade-network", "cade")
 
 
-def record_file(run: Path, name: str) -> Path | None:
-    """The judge's record of set ``name`` in a judged run's folder, gzipped or plain; None when absent."""
-    for path in (run / f"{name}.json.gz", run / f"{name}.json"):
-        if path.is_file():
-            return path
-    return None
+def record_file(run: Path, name: str) -> Path:
+    """The judge's gzipped record of set ``name`` in a judged run's folder."""
+    return run / f"{name}.json.gz"
 
 
-def summary_scores(path: Path | None, method: str) -> dict[str, float] | None:
+def summary_scores(path: Path, method: str) -> dict[str, float] | None:
     """The summary scores of ``method`` (``cade-network`` or ``cade``, whatever model it names) in one
-    ``cade benchmark --json`` file (gzipped or plain); None when the file or the method is not there."""
-    if path is None:
+    gzipped ``cade benchmark --json`` file; None when the file or the method is not there."""
+    if not path.is_file():
         return None
-    text = gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
-    for row in json.loads(text)["summary"]:
+    for row in json.loads(gzip.decompress(path.read_bytes()))["summary"]:
         if row["method"].split(":")[0] == method:
             return row["scores"]
     return None
@@ -54,7 +50,7 @@ def cell(scores: dict[str, float] | None, region: str) -> str:
 def table(judged: Path) -> tuple[str, dict[str, dict[str, float]]]:
     """The Markdown tables (one per set and method) and, per run, the whole matcher's Middlebury 2014 scores."""
     runs = sorted(path for path in judged.iterdir()
-                  if path.is_dir() and any(record_file(path, name) for name in SETS))
+                  if path.is_dir() and any(record_file(path, name).is_file() for name in SETS))
     lines, middlebury = [], {}
     for name in SETS:
         for method in METHODS:

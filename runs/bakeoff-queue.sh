@@ -20,7 +20,7 @@ while true; do
         "runs/$run/ship-check.sh" >> "runs/$run/ship-check.log" 2>&1
         echo $? > "runs/$run/ship-check.exit"  # 0: the candidate passes the rule
       fi
-      [ -f "$judged/$run/kitti2015.json.gz" ] || [ -f "$judged/$run/kitti2015.json" ] || [ -f "$judged/$run/FAILED" ] && continue
+      [ -f "$judged/$run/kitti2015.json.gz" ] || [ -f "$judged/$run/FAILED" ] && continue
       echo "$(date -u +%FT%TZ) judging $run"
       OMP_NUM_THREADS=1 benchmarks/bakeoff_judge.sh "runs/$run" "$judged/$run" \
         || { echo "judging $run failed"; touch "$judged/$run/FAILED"; }
