@@ -82,6 +82,8 @@ ITERATIVE_TWINS = {
     "cadenet-iterative f24 w32 (the campaign's, runs/campaign-2026-12-06-iterative)": ITERATIVE,
     "cadenet-iterative f24 w32 with the mask's evidence (the longer schedule's, since 2026-12-07)":
         {**ITERATIVE, "mask_evidence": True},
+    "cadenet-iterative f24 w32 with the mask's evidence and the 1/2 features' cosine at its candidates":
+        {**ITERATIVE, "mask_evidence": True, "fine_evidence": True},
     "cadenet-iterative f16 w32": {**ITERATIVE, "features2d": 16},
     "cadenet-iterative f16 w24": {**ITERATIVE, "features2d": 16, "width2d": 24},
     "cadenet-iterative f16 w16": {**ITERATIVE, "features2d": 16, "width2d": 16},

@@ -37,6 +37,8 @@ def tiny(architecture: str) -> torch.nn.Module:
         return CadeNetIterative(TINY["levels"], features=8, width=8, steps2=1)
     if architecture == "cadenet-iterative with mask evidence":  # the mask sees the correlation at its candidates
         return network_of({"architecture": "cadenet-iterative", **TINY, "mask_evidence": True})
+    if architecture == "cadenet-iterative with fine evidence":  # ... and the 1/2 features' cosine at them
+        return network_of({"architecture": "cadenet-iterative", **TINY, "mask_evidence": True, "fine_evidence": True})
     return network_of({"architecture": architecture, **TINY})
 
 
@@ -79,7 +81,8 @@ def test_each_design_is_registered_and_gives_full_resolution_maps(architecture):
     assert "disparity" not in net.eval()(left, right, refine=False)
 
 
-@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with mask evidence"))
+@pytest.mark.parametrize("architecture", (*DESIGNS, "cadenet-iterative with mask evidence",
+                                          "cadenet-iterative with fine evidence"))
 def test_a_few_steps_on_a_shifted_texture_lower_the_loss(architecture):
     rng = np.random.default_rng(3)
     pairs = [shifted_pair(rng, (32, 64), 6) for _ in range(2)]
@@ -114,17 +117,58 @@ def test_the_export_agrees_with_torch_and_holds_no_grid_sample_or_data_gather(ar
     assert all(made_by.get(node.input[0]) == "Shape" for node in graph.node if node.op_type == "Gather")
 
 
-def test_the_mask_evidence_starts_as_the_checkpoint_it_widens_and_then_counts():
-    source = trained_looking(tiny("cadenet-iterative"))
-    widened = tiny("cadenet-iterative with mask evidence")
-    assert widened.design["mask_evidence"] and "mask_evidence" not in source.design
+@pytest.mark.parametrize("source_design, design, key, inputs", (
+    ("cadenet-iterative", "cadenet-iterative with mask evidence", "mask_evidence", 9 * 5),  # 4 groups + the distance
+    ("cadenet-iterative with mask evidence", "cadenet-iterative with fine evidence", "fine_evidence", 9 * 4 * 4)))
+def test_the_mask_evidence_starts_as_the_checkpoint_it_widens_and_then_counts(source_design, design, key, inputs):
+    source = trained_looking(tiny(source_design))
+    widened = tiny(design)
+    assert widened.design[key] and key not in source.design
     widened.load_state_dict(transferable(source.state_dict(), widened))  # fit --init-partial
     widened.eval()
     left, right = torch.rand(2, 1, 1, 48, 64)
     with torch.no_grad():
         assert torch.allclose(source(left, right)["disparity"], widened(left, right)["disparity"], atol=1e-5)
-        widened.mask.net[0][0].weight[:, -9 * 5:].normal_(0, 0.5)  # the evidence's inputs (4 groups + the distance, nine times)
+        widened.mask.net[0][0].weight[:, -inputs:].normal_(0, 0.5)  # the new evidence's inputs, last in the guide
         assert not torch.allclose(source(left, right)["disparity"], widened(left, right)["disparity"])
+
+
+def test_the_fine_evidence_exports_with_its_reads_as_the_only_gathers(tmp_path: Path):
+    net = trained_looking(tiny("cadenet-iterative with fine evidence"))
+    path = tmp_path / "net.onnx"
+    export_onnx(net, path, sample_size=(64, 96))
+    assert verify_onnx(net, path, sizes=((48, 64), (80, 208))) < 1e-3
+    operators = [node.op_type for node in onnx.load(str(path)).graph.node]
+    assert "GridSample" not in operators and "GatherND" not in operators
+    assert operators.count("GatherElements") == 9 * 2  # two columns for each of the nine candidates
+
+
+def test_the_fine_evidence_reads_each_half_pixel_at_each_neighbours_estimate():
+    net = tiny("cadenet-iterative with fine evidence").eval()
+    generator = torch.Generator().manual_seed(5)
+    texture = torch.randn(1, 16, 10, 20, generator=generator)  # 1/2 features: 4 groups of 4 channels
+    left, right = texture[..., :14], texture[..., 6:]  # (1, 16, 10, 14), 5 x 7 cells of 2 x 2 half pixels
+    # right(x) = left(x + 6): left(x) matches right(x - 6), 6 half px, 3 px of the 1/4 level
+    disparity = torch.full((1, 1, 5, 7), 3.0)
+    disparity[..., 6:] = 1.25  # the last column of cells holds a wrong estimate, 2.5 half px
+    evidence = net.fine_evidence_of(disparity, left, right).view(1, 9, 4, 4, 5, 7)  # candidate, group, half pixel
+    # cell (2, 4): every neighbour holds the match, so every half pixel and group reads a cosine of 1
+    assert torch.allclose(evidence[0, :, :, :, 2, 4], torch.ones(9, 4, 4), atol=1e-4)
+    # cell (2, 5): its right neighbours (2, 5, 8) hold the wrong estimate; the others match
+    assert torch.allclose(evidence[0, [0, 1, 3, 4, 6, 7], :, :, 2, 5], torch.ones(6, 4, 4), atol=1e-4)
+    assert (evidence[0, [2, 5, 8], :, :, 2, 5] < 0.9).all()
+    # the wrong estimate by hand: the right view's features at x - 2.5, half of columns x - 2 and x - 3
+    def unit(x):
+        return x / x.view(4, 4).norm(dim=1).repeat_interleave(4)
+
+    row, column = 4, 10  # the half pixel (0, 0) of cell (2, 5)
+    read = 0.5 * unit(right[0, :, row, column - 2]) + 0.5 * unit(right[0, :, row, column - 3])
+    cosine = (unit(left[0, :, row, column]) * read).view(4, 4).sum(dim=1)
+    assert torch.allclose(evidence[0, 5, :, 0, 2, 5], cosine, atol=1e-4)
+    # where the match falls outside the right view, 0 (cell (2, 1): x - 6 < 0)
+    assert (evidence[0, :, :, :, 2, 1] == 0).all()
+    # a candidate that reads outside the right view reads 0
+    assert (net.fine_evidence_of(torch.full((1, 1, 5, 7), 40.0), left, right) == 0).all()
 
 
 def test_the_mask_evidence_is_refused_for_another_design_before_anything_is_written(tmp_path: Path):
@@ -133,6 +177,8 @@ def test_the_mask_evidence_is_refused_for_another_design_before_anything_is_writ
     out = tmp_path / "run"
     with pytest.raises(ValueError, match="cadenet-iterative"):
         train(TrainConfig(out=str(out), textures=[], architecture="cadenet2d", mask_evidence=True, steps=1))
+    with pytest.raises(ValueError, match="cadenet-iterative"):
+        train(TrainConfig(out=str(out), textures=[], architecture="cadenet-peak", fine_evidence=True, steps=1))
     assert not out.exists()
 
 

@@ -117,6 +117,9 @@ def fit(
                                                "(0: the plain mean).")] = 0.0,
     mask_evidence: Annotated[bool, typer.Option(help="cadenet-iterative: its convex mask also sees the 1/4 "
                                                 "correlation at the nine estimates it combines.")] = False,
+    fine_evidence: Annotated[bool, typer.Option(help="cadenet-iterative: its convex mask also sees, at each of "
+                                                "those estimates, the cosine of the two views' 1/2 features for "
+                                                "each 1/2 pixel of its cell.")] = False,
     mask_pick: Annotated[float, typer.Option(min=0.0, help="cadenet-iterative: weight of its convex mask's pick "
                                              "loss (the truth's likelihood under the mask's mixture of its nine "
                                              "candidates; 0: none).")] = 0.0,
@@ -189,6 +192,7 @@ def fit(
                          full_refinement=full_refinement, slice_channels=slice_channels, validate_rgb=validate_rgb, scene_range=scene_range,
                          eraser=eraser, ground=ground, shadows=shadows, misaligned_offset=misaligned_offset,
                          thin=thin, floating=floating, asymmetric=asymmetric, edge_weight=edge_weight, mask_evidence=mask_evidence,
+                         fine_evidence=fine_evidence,
                          mask_pick=mask_pick,
                          feature_consistency=feature_consistency, crop_schedule=crop_schedule,
                          selfsup_dir=str(selfsup_dir) if selfsup_dir else None,

@@ -115,6 +115,10 @@ class TrainConfig:
     mask_evidence: bool = False
     """cadenet-iterative only: its convex mask also sees the 1/4 correlation at each of the nine estimates it
     combines (:meth:`~cade_cli.train.net_iterative.CadeNetIterative.evidence`). False: as before."""
+    fine_evidence: bool = False
+    """cadenet-iterative only: its convex mask also sees, for each of those nine estimates and each 1/2 pixel of
+    its cell, the cosine of the two views' 1/2 features there
+    (:meth:`~cade_cli.train.net_iterative.CadeNetIterative.fine_evidence_of`). False: as before."""
     mask_pick: float = 0.0
     """cadenet-iterative only: weight of the convex mask's pick loss (:func:`~cade_cli.train.fit.pick_loss`: the
     truth's negative log-likelihood under the mask's mixture of its nine candidates), added to the supervised

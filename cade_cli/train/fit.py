@@ -121,7 +121,8 @@ def check(config: TrainConfig) -> None:
     parse_crop_schedule(config.crop_schedule)  # a malformed schedule fails before anything is written
     if config.feature_consistency > 0 and config.architecture != "cadenet2d":
         raise ValueError("the feature-consistency loss needs the cadenet2d architecture")
-    if (config.mask_evidence or config.mask_pick > 0) and config.architecture != "cadenet-iterative":
+    if ((config.mask_evidence or config.fine_evidence or config.mask_pick > 0)
+            and config.architecture != "cadenet-iterative"):
         raise ValueError("the convex mask's evidence and pick loss need the cadenet-iterative architecture")
     if config.selfsup_share > 0 and not (config.selfsup_dir and config.selfsup_cache):
         raise ValueError("the self-supervised share needs selfsup_dir and selfsup_cache")

@@ -70,16 +70,18 @@ class Features2D(nn.Module):
         return half, self.quarter(half)
 
 
+def unit_groups(x: torch.Tensor, groups: int) -> torch.Tensor:
+    """(B, C, h, w) with each group of C / ``groups`` channels scaled to unit length at each pixel."""
+    batch, channels, height, width = x.shape
+    grouped = x.view(batch, groups, channels // groups, height, width)
+    return (grouped / (grouped.pow(2).sum(dim=2, keepdim=True) + 1e-6).sqrt()).view(batch, channels, height, width)
+
+
 def normalised_correlation(left: torch.Tensor, right: torch.Tensor, levels: int, groups: int) -> torch.Tensor:
     """(B, groups * levels, h, w), disparity-major: the cosine of each channel group of
     left(x) and right(x - d), d = 0 .. levels - 1 (0 where x - d is outside the right view)."""
     batch, channels, height, width = left.shape
-
-    def unit(x: torch.Tensor) -> torch.Tensor:
-        grouped = x.view(batch, groups, channels // groups, height, width)
-        return (grouped / (grouped.pow(2).sum(dim=2, keepdim=True) + 1e-6).sqrt()).view(batch, channels, height, width)
-
-    left, right = unit(left), unit(right)
+    left, right = unit_groups(left, groups), unit_groups(right, groups)
     padded = F.pad(right, (levels - 1, 0))
     slices = [(left * padded[..., levels - 1 - d:levels - 1 - d + width])
               .view(batch, groups, channels // groups, height, width).sum(dim=2) for d in range(levels)]

@@ -19,6 +19,13 @@ local re-matching design (HITNet's and RAFT-Stereo's idea, light enough for the 
              from the cell's estimate: the matching evidence to pick one surface at a depth edge, which
              the left view alone cannot give (docs/research/refinement.md, 2026-12-07). Its weights
              start at zero, so a checkpoint without it loads (``--init-partial``) and computes the same.
+             With ``fine_evidence`` it also sees that evidence inside the cell: for each candidate and
+             each of the cell's four 1/2 pixels, the cosine of the left view's 1/2 features and the
+             right view's read at the candidate (:meth:`CadeNetIterative.fine_evidence`; new inputs
+             at zero too). An edge runs through a cell; the 1/4 correlation is one value for all its
+             sixteen pixels, this says which side of it matches which surface. Its reads are
+             GatherElements (two columns a candidate, linear weights): slices would need the whole
+             1/2 volume, which cost more than the rest of the network (below).
 
 The 1/2 level is off by default (``steps2`` 0): its volume of levels/2 disparities at 1/2 cost
 more than the rest of the network (untrained ONNX at 720x496, 2 threads, CPU shared with
@@ -36,7 +43,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from cade_cli.train.model import DISPARITY_SCALE, conv2d
-from cade_cli.train.net2d import PRIOR_GAIN, Features2D, Residual2D, normalised_correlation
+from cade_cli.train.net2d import PRIOR_GAIN, Features2D, Residual2D, normalised_correlation, unit_groups
 from cade_cli.train.net_blocks import (ConvexMask, both_views, convex_upsample, expectation, hat_lookup, neighbours3x3,
                                        upsampled, upsampling_guide)
 
@@ -88,20 +95,23 @@ class CadeNetIterative(nn.Module):
     divisor = DIVISOR
 
     def __init__(self, levels: int = 192, features: int = 24, groups: int = 4, width: int = 32, radius: int = 2,
-                 steps4: int = 2, steps2: int = 0, blocks: int = 2, mask_evidence: bool = False):
+                 steps4: int = 2, steps2: int = 0, blocks: int = 2, mask_evidence: bool = False,
+                 fine_evidence: bool = False):
         super().__init__()
         if levels % 16:
             raise ValueError(f"levels must be a multiple of 16, got {levels}")
         if features % groups or 16 % groups:
             raise ValueError(f"features ({features}) and 16 must be multiples of groups ({groups})")
         self.levels, self.groups, self.offsets = levels, groups, tuple(range(-radius, radius + 1))
-        if mask_evidence and steps2:
-            raise ValueError("mask_evidence is for the x4 mask from 1/4 (steps2 0)")
-        self.steps4, self.steps2, self.mask_evidence = steps4, steps2, mask_evidence
+        if (mask_evidence or fine_evidence) and steps2:
+            raise ValueError("the mask's evidence is for the x4 mask from 1/4 (steps2 0)")
+        self.steps4, self.steps2, self.mask_evidence, self.fine_evidence = steps4, steps2, mask_evidence, fine_evidence
         self.design = {"architecture": "cadenet-iterative", "features": features, "groups": groups, "width": width,
                        "radius": radius, "steps4": steps4, "steps2": steps2, "blocks": blocks}
         if mask_evidence:  # the key only where it is on: earlier cards and configs stay as they were
             self.design["mask_evidence"] = True
+        if fine_evidence:
+            self.design["fine_evidence"] = True
         self.features = PyramidFeatures(features, blocks)
         self.prior_gain = nn.Parameter(torch.tensor(PRIOR_GAIN))
         eighth = levels // 8
@@ -115,7 +125,7 @@ class CadeNetIterative(nn.Module):
         self.update4 = LocalUpdate(local, features, width)
         self.update2 = LocalUpdate(local, 16, max(8, width // 2)) if steps2 else None
         # the last level's estimate to full resolution: from 1/2 (x2), or from 1/4 (x4) without 1/2 updates
-        evidence = 9 * (groups + 1) if mask_evidence else 0
+        evidence = (9 * (groups + 1) if mask_evidence else 0) + (9 * 4 * groups if fine_evidence else 0)
         self.mask = (ConvexMask(16 + 4, 2, 16) if steps2 else ConvexMask(features + 4 * 16 + 16 + evidence, 4, 32))
 
     def describe(self, output: str) -> str:
@@ -127,6 +137,7 @@ class CadeNetIterative(nn.Module):
                    f"at the estimate +-{design['radius']} px, slices and hat weights) -> learned convex upsampling "
                    + ("x2" if design["steps2"] else "x4")
                    + (" (its mask sees the correlation at its nine candidates)" if self.mask_evidence else "")
+                   + (" (its mask sees the 1/2 features' cosine at its nine candidates)" if self.fine_evidence else "")
                    if output == "disparity" else "bilinear x8 (coarse output: re-matching not exported)"))
 
     def rematched(self, disparity: torch.Tensor, left: torch.Tensor, right: torch.Tensor, update: LocalUpdate,
@@ -148,6 +159,31 @@ class CadeNetIterative(nn.Module):
         options = neighbours3x3(disparity)
         reads = [hat_lookup(volume, options[:, k:k + 1], (0,), self.groups) for k in range(9)]
         return torch.cat([*reads, (options - disparity) * (4 / DISPARITY_SCALE)], dim=1)
+
+    def fine_evidence_of(self, disparity: torch.Tensor, half_left: torch.Tensor,
+                         half_right: torch.Tensor) -> torch.Tensor:
+        """(B, 9 * groups * 4, h, w), candidate-major, then group, then the cell's four 1/2 pixels
+        (row-major, as ``pixel_unshuffle`` lays them): for each of the nine neighbours' estimates
+        (``disparity``, px of the 1/4 level; held fixed: this reads, it does not move them), the cosine
+        per channel group of the left view's 1/2 features at each 1/2 pixel of the cell and the right
+        view's at the estimate (two columns linearly weighted; 0 where it falls outside the right view)."""
+        options = 2 * F.interpolate(neighbours3x3(disparity.detach()), scale_factor=2, mode="nearest")  # 1/2 px
+        left, right = unit_groups(half_left, self.groups), unit_groups(half_right, self.groups)
+        batch, channels, height, width = left.shape
+        columns = torch.arange(width, dtype=options.dtype, device=options.device).view(1, 1, 1, width)
+        reads = []
+        for k in range(9):
+            position = columns - options[:, k:k + 1]
+            lower = torch.floor(position)
+            weight = position - lower
+            warped = 0
+            for column, share in ((lower, 1 - weight), (lower + 1, weight)):
+                inside = ((column >= 0) & (column <= width - 1)).to(left.dtype)
+                index = column.clamp(0, width - 1).long().expand(batch, channels, height, width)
+                warped = warped + torch.gather(right, 3, index) * (share * inside)
+            cosine = (left * warped).view(batch, self.groups, channels // self.groups, height, width).sum(dim=2)
+            reads.append(F.pixel_unshuffle(cosine, 2))
+        return torch.cat(reads, dim=1)
 
     def forward(self, left: torch.Tensor, right: torch.Tensor, refine: bool = True) -> dict[str, torch.Tensor]:
         """left, right: (B, 1, H, W) -> ``coarse`` (the 1/8 soft-argmin, bilinearly upsampled),
@@ -172,6 +208,8 @@ class CadeNetIterative(nn.Module):
                 guide = upsampling_guide((quarter_left,), half_left, left)
                 if self.mask_evidence:
                     guide = torch.cat([guide, self.evidence(quarter, volume)], dim=1)
+                if self.fine_evidence:
+                    guide = torch.cat([guide, self.fine_evidence_of(quarter, half_left, half_right)], dim=1)
                 mask = self.mask(guide)
                 out["disparity"] = convex_upsample(quarter, mask, 4)
                 out.update(quarter=quarter, mask=mask)  # what it combines, for cade_cli.train.mask_headroom
