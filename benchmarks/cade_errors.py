@@ -15,11 +15,15 @@ class by where it came from: ``refined-wrong`` (the candidate replaced the netwo
 and is wrong; ``broke`` counts those where the network was right), ``kept-rejected`` (the
 network is wrong and SGBM rejected the match), ``kept-far`` (SGBM's accepted match is more
 than 32 px away and the network's wrong value stayed; ``far-right`` counts those where the
-candidate was right). Figures are over all pixels with GT (and ``--region nonocc``).
+candidate was right). Figures are over all pixels with GT, or a region of them (``--region``:
+``nonocc``, or ``edge``, the non-occluded pixels near a depth jump, as ``cade benchmark`` scores
+them: :func:`~cade_cli.evaluation.regions.region_masks`). ``--model`` runs a card other than the
+default (the network and the refinement its card names: ``rank-sgbm-two-scales`` adds the
+half-size match where the full-size one is rejected).
 
 Usage:
     .venv/bin/python benchmarks/cade_errors.py --data-dir ../shared/data --dataset middlebury14 \\
-        [--tasks R>B,G>B] [--region all|nonocc] [--markdown docs/cade-errors.md]
+        [--tasks R>B,G>B] [--region all|nonocc|edge] [--model CARD] [--markdown docs/cade-errors.md]
 """
 
 from __future__ import annotations
@@ -34,17 +38,20 @@ from cade_cli.data import Scene, get_dataset
 from cade_cli.evaluation.loop import map_scenes
 from cade_cli.evaluation.metrics import bad_pixel_rate, end_point_error
 from cade_cli.evaluation.protocols import Protocol, get_protocol
+from cade_cli.evaluation.regions import region_masks
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.network import NetworkStage
+from cade_cli.matching.learned import card_refinement
+from cade_cli.matching.network import DEFAULT_MODEL, NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 
 BAD = 3.0
 CLASSES = ("refined-wrong", "broke", "kept-rejected", "kept-far", "far-right")
 
 
-def stage_maps(left: np.ndarray, right: np.ndarray, max_disp: int, refinement: RankSgbmRefinement) -> dict:
+def stage_maps(left: np.ndarray, right: np.ndarray, max_disp: int, refinement: RankSgbmRefinement,
+               model: str = DEFAULT_MODEL) -> dict:
     """The stage maps (px) of one task and the candidate's acceptance."""
-    network = NetworkStage()(left, right, DisparityRange(0, max_disp))
+    network = NetworkStage(model)(left, right, DisparityRange(0, max_disp))
     candidate, accepted = refinement.candidate(left, right, network, max_disp)
     near = accepted & (np.abs(candidate - network) <= refinement.agreement)
     return {"network": network, "candidate": candidate, "accepted": accepted, "near": near,
@@ -74,14 +81,24 @@ def analyse(maps: dict, gt: np.ndarray, region: np.ndarray) -> dict:
     return row
 
 
-def analyse_scene(scene: Scene, *, protocol: Protocol, region: str) -> dict:
+def scored_region(scene: Scene, region: str) -> np.ndarray:
+    """The (H, W) bool pixels ``region`` (``all``, ``nonocc``, ``edge``) names in ``scene``."""
+    if region == "all":
+        return np.ones(scene.disparity.shape, bool)
+    masks = region_masks(scene.disparity, nonocc=scene.nonocc)
+    if region not in masks:
+        raise SystemExit(f"{scene.name} has no {region} pixels (no occlusion mask or no depth jump)")
+    return masks[region]
+
+
+def analyse_scene(scene: Scene, *, protocol: Protocol, region: str, model: str = DEFAULT_MODEL) -> dict:
     """The mean over ``protocol``'s tasks of :func:`analyse` on one scene."""
-    everywhere = np.ones(scene.disparity.shape, bool)
-    pixels = scene.nonocc if region == "nonocc" and scene.nonocc is not None else everywhere
+    pixels = scored_region(scene, region)
+    refinement = card_refinement(NetworkStage(model).card(), RankSgbmRefinement())
     rows = []
     for task in protocol.tasks:
         left, right = task.bands(scene.left, scene.right)
-        rows.append(analyse(stage_maps(left, right, scene.max_disp, RankSgbmRefinement()), scene.disparity, pixels))
+        rows.append(analyse(stage_maps(left, right, scene.max_disp, refinement, model), scene.disparity, pixels))
     return {key: float(np.mean([row[key] for row in rows])) for key in rows[0]}
 
 
@@ -90,13 +107,15 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, required=True)
     parser.add_argument("--dataset", default="middlebury14")
     parser.add_argument("--tasks", default=None, help="Comma-separated CS tasks (default: all six).")
-    parser.add_argument("--region", choices=("all", "nonocc"), default="all")
+    parser.add_argument("--region", choices=("all", "nonocc", "edge"), default="all")
+    parser.add_argument("--model", default=None, help=f"a card name or path (default {DEFAULT_MODEL})")
     parser.add_argument("--markdown", type=Path, default=None)
     parser.add_argument("--jobs", type=int, default=1)
     args = parser.parse_args()
     protocol = get_protocol("cs").select(args.tasks.split(",") if args.tasks else None)
     reader = get_dataset(args.dataset)
-    rows = list(map_scenes(partial(analyse_scene, protocol=protocol, region=args.region), reader, args.data_dir,
+    rows = list(map_scenes(partial(analyse_scene, protocol=protocol, region=args.region,
+                                                model=args.model or DEFAULT_MODEL), reader, args.data_dir,
                            reader.scene_names(args.data_dir), jobs=args.jobs))
     rows.append(("mean", {key: float(np.mean([r[key] for _, r in rows])) for key in rows[0][1]}))
     header = ("| scene | network EPE / BMP3 | sgbm | cade | oracle | BMP3 errors: refined-wrong (broke) | "

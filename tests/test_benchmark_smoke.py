@@ -25,7 +25,7 @@ SCRIPTS: dict[str, str] = {
     # script -> what exercises it beyond --help ("" : --help alone, its run needs ../shared/data or minutes)
     "auto_range.py": "",
     "brightness.py": "tests/test_benchmark.py (count_scene on a generated pair)",
-    "cade_errors.py": "",
+    "cade_errors.py": "tests/test_cade_errors.py (its regions and error classes on built maps)",
     "cade_stages.py": "",
     "bakeoff_judge.sh": "here: its usage line, and a one-step checkpoint judged on one Middlebury scene",
     "bakeoff_table.py": "here: the table and plot of that judged checkpoint",
