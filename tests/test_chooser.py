@@ -137,3 +137,28 @@ def test_both_tiers_name_shipped_cards_whose_choosers_load():
         assert card.chooser is not None and card.chooser["features"] == list(FEATURES)
         chooser = Chooser.from_dict(card.chooser)
         assert chooser.hidden.shape[0] == len(FEATURES) and chooser.output.shape == (chooser.hidden.shape[1] + 1,)
+
+
+def test_the_edge_weight_weighs_only_the_pixels_near_a_depth_jump(tmp_path: Path):
+    """A cached scene with one depth jump (10 px to 30 px at column 30): with edge weight W the
+    disputed pixels within 3 px of it weigh 1 + W times what they weigh without; the others, the
+    features and the labels are those of the fit without it."""
+    pytest.importorskip("torch")
+    from cade_cli.train.chooser import samples
+
+    rng = np.random.default_rng(6)
+    shape = (20, 60)
+    gt = np.where(np.arange(60)[None, :] < 30, 10.0, 30.0).astype(np.float32).repeat(20, axis=0)
+    columns = np.broadcast_to(np.arange(60, dtype=np.float32), shape)  # the left band: a ramp
+    network = (gt + rng.uniform(-6, 6, shape)).astype(np.float32)
+    np.savez(tmp_path / "scene.npz", gt=gt, RB_network=network, RB_uncertainty=np.ones(shape, np.float32),
+             RB_candidate=(gt + rng.uniform(-6, 6, shape)).astype(np.float32), RB_accepted=np.ones(shape, bool),
+             RB_left=columns / 60)
+    plain = samples([tmp_path / "scene.npz"], np.random.default_rng(0), per_task=400)
+    weighed = samples([tmp_path / "scene.npz"], np.random.default_rng(0), per_task=400, edge_weight=4.0)
+    np.testing.assert_array_equal(plain[0], weighed[0])
+    np.testing.assert_array_equal(plain[1], weighed[1])
+    ratio = weighed[2] / plain[2]
+    assert set(np.round(ratio, 5)) == {1.0, 5.0}
+    assert 0 < (ratio == 5.0).mean() < 8 / 60  # within the band of columns 26..33 (8 of 60; the pixels the
+    # network hides from the right view, left of the jump, are not sampled)

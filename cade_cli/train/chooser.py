@@ -8,7 +8,10 @@ better of the two candidates per pixel). The fit weighs each pixel by how much t
 matters: a pixel where one candidate is within 3 px of the truth and the other is not
 counts most. Only the pixels the pipeline asks the chooser about are fitted on: disputed
 (:func:`~cade_cli.matching.chooser.disputed`) and visible in the right view (elsewhere
-the pipeline marks the pixel invalid and fills it). Which of these choices to keep was
+the pipeline marks the pixel invalid and fills it). ``edge_weight`` W weighs the pixels near a
+ground-truth depth jump (the benchmark's depth-edge band, :mod:`cade_cli.evaluation.regions`)
+1 + W times more, where the whole matcher's errors are mostly the choice's
+(docs/research/refinement.md, 2026-12-07). Which of these choices to keep was
 decided by 3-fold cross-validation over the train-real scenes, never on a reporting set. ``python -m cade_cli.train chooser`` runs it all and can write the chooser
 into the model's card, where the runtime finds it.
 """
@@ -25,6 +28,7 @@ import torch
 from cade_cli.data import get_dataset
 from cade_cli.evaluation.metrics import score as score_map
 from cade_cli.evaluation.protocols import get_protocol
+from cade_cli.evaluation.regions import EDGE_RADIUS, depth_jumps, near
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
 from cade_cli.matching.disparity import densify, visible_in_right_view
@@ -90,10 +94,16 @@ def features_of(task: dict) -> np.ndarray:
     return chooser_features(task["left"], task["network"], task["uncertainty"], task["candidate"], task["accepted"])
 
 
-def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000, tasks: tuple[str, ...] | None = None):
+def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000, tasks: tuple[str, ...] | None = None,
+            edge_weight: float = 0.0):
+    """(features, label, weight) of up to ``per_task`` disputed, visible pixels of each task: label 1
+    where SGBM's match is nearer the truth; the weight as the module docstring says."""
     xs, ys, ws = [], [], []
     for cache in caches:
+        edges = None
         for gt, task in tasks_of(cache, tasks):
+            if edges is None and edge_weight > 0:
+                edges = near(depth_jumps(gt), radius=EDGE_RADIUS)
             features = features_of(task)
             usable = disputed(task["network"], task["candidate"], task["accepted"]) & np.isfinite(gt)
             usable &= visible_in_right_view(task["network"])  # the pipeline decides there only
@@ -107,17 +117,19 @@ def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000,
             label = (error_candidate < error_network).astype(np.float32)
             decisive = (error_candidate <= BAD) != (error_network <= BAD)
             weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
+            if edges is not None:
+                weight = weight * (1.0 + edge_weight * edges[rows, cols])
             xs.append(features[rows, cols]), ys.append(label), ws.append(weight.astype(np.float32))
     return np.concatenate(xs), np.concatenate(ys), np.concatenate(ws)
 
 
 def fit(caches: list[Path], *, hidden: int = 16, steps: int = 3000, seed: int = 0,
-        tasks: tuple[str, ...] | None = None) -> Chooser:
+        tasks: tuple[str, ...] | None = None, edge_weight: float = 0.0) -> Chooser:
     """The chooser fitted on the disputed, visible pixels of ``tasks`` (default: every
-    cached task) of ``caches``."""
+    cached task) of ``caches``, those near a depth jump weighed 1 + ``edge_weight`` times more."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    x, y, w = (torch.from_numpy(a) for a in samples(caches, rng, tasks=tasks))
+    x, y, w = (torch.from_numpy(a) for a in samples(caches, rng, tasks=tasks, edge_weight=edge_weight))
     first = torch.nn.Linear(len(FEATURES), hidden, bias=False)  # the bias is the last feature
     second = torch.nn.Linear(hidden, 1)
     optimizer = torch.optim.Adam([*first.parameters(), *second.parameters()], lr=1e-2)
