@@ -18,7 +18,7 @@ two neighbouring checkpoints of one run: a change no larger than one checkpoint 
 is noise, not a loss. Measured by
 
     .venv/bin/python benchmarks/shipping_rule.py tolerances --rows cade:r47500,cade:r53500,cade:c60000 \
-        runs/campaign-2d/judged/*.json
+        runs/campaign-2d/judged/*.json.gz
 
 on runs/campaign-2d's raw checkpoints of steps 47,500, 53,500 and 60,000 (the end of its cosine; each
 with its own chooser, as benchmarks/candidate_check.sh builds them), docs/research/shipping-rule.md (2026-11-27),
@@ -49,10 +49,12 @@ the verdict stays on all pixels.
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import math
 import statistics
 import sys
+from pathlib import Path
 
 MIDDLEBURY = ("middlebury05", "middlebury14")
 """The datasets whose pooled means decide item 1, both protocols."""
@@ -78,11 +80,12 @@ REGIONS = {"nonocc": "non-occluded", "edge": "depth edges", "occ": "occluded"}
 
 
 def read_records(paths: list[str]) -> list[dict]:
-    """Every record of the runs, with its set name (``dataset`` pooled by ``POOLED``)."""
+    """Every record of the runs (JSON files, plain or gzipped: ``.json.gz``), with its set name
+    (``dataset`` pooled by ``POOLED``)."""
     records = []
     for path in paths:
-        with open(path, encoding="utf-8") as file:
-            run = json.load(file)
+        raw = Path(path).read_bytes()
+        run = json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
         for record in run["records"]:
             dataset = record.get("dataset", run["config"]["dataset"])
             records.append({**record, "dataset": dataset, "set": POOLED.get(dataset, dataset)})

@@ -278,6 +278,26 @@ def test_the_shipping_rule_pools_every_middlebury_record_and_judges_each_set_by_
     assert "not both lower" in capsys.readouterr().out
 
 
+def test_the_shipping_rule_reads_gzipped_records_as_plain_ones(tmp_path, capsys):
+    import gzip
+
+    rule = _shipping_rule()
+    rule.TOLERANCES.clear()
+    args = ["--shipped", "old", "--candidate", "new"]
+    scores = {"middlebury05": {"cs": {"old": (2.0, 20.0), "new": (1.9, 19.0)}},
+              "msir-outdoor": {"native": {"old": (1.0, 10.0), "new": (0.9, 9.0)}}}
+    plain = _rule_runs(tmp_path, scores)
+    assert rule.main(args + plain) == 0
+    expected = capsys.readouterr().out
+    zipped = []
+    for path in plain:
+        Path(path + ".gz").write_bytes(gzip.compress(Path(path).read_bytes()))
+        Path(path).unlink()
+        zipped.append(path + ".gz")
+    assert rule.main(args + zipped) == 0
+    assert capsys.readouterr().out == expected
+
+
 def test_the_shipping_rule_pools_kitti_and_needs_the_real_check(tmp_path, capsys):
     rule = _shipping_rule()
     rule.TOLERANCES.clear()  # every set at the default 3 %

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.chooser import AGREE, FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.chooser import AGREE, EDGE_FEATURES, FEATURES, Chooser, chooser_features, disputed
 from cade_cli.matching.learned import LearnedPipeline, card_refinement
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
@@ -71,6 +71,39 @@ def test_the_weights_round_trip_through_a_card_dict():
     np.testing.assert_allclose(again.probability(features), chooser.probability(features), atol=1e-6)
 
 
+WITH_EDGES = (*FEATURES[:-1], *EDGE_FEATURES, "bias")
+
+
+def test_the_edge_features_say_which_surface_each_value_lies_on():
+    """A step from 10 px (columns < 30) to 30 px: at a background pixel beside it the network's value
+    lies on the lower surface and a match that took the near surface's value on the higher one;
+    far from the step the window is flat and the jump reads 0. The other features are unchanged."""
+    shape = (20, 60)
+    network = np.where(np.arange(60)[None, :] < 30, 10.0, 30.0).astype(np.float32).repeat(20, axis=0)
+    candidate = network.copy()
+    candidate[:, 27:30] = 30.0  # SGBM took the near surface's value left of the step (fattening)
+    left, uncertainty, accepted = np.ones(shape, np.float32), np.ones(shape, np.float32), np.ones(shape, bool)
+    features = chooser_features(left, network, uncertainty, candidate, accepted, names=WITH_EDGES)
+    plain = chooser_features(left, network, uncertainty, candidate, accepted)
+    edge = {name: features[..., WITH_EDGES.index(name)] for name in EDGE_FEATURES}
+    np.testing.assert_array_equal(features[..., [WITH_EDGES.index(name) for name in FEATURES]], plain)
+    assert np.allclose(edge["network_jump"][:, 26:34], 20 / 32) and np.allclose(edge["network_jump"][:, :20], 0)
+    assert np.allclose(edge["network_side"][:, 28], 0) and np.allclose(edge["network_side"][:, 31], 1)
+    assert np.allclose(edge["candidate_side"][:, 28], 1) and np.allclose(edge["candidate_side"][:, 25], 0)
+
+
+def test_a_chooser_names_its_inputs_and_a_card_with_unknown_ones_is_refused():
+    rng = np.random.default_rng(4)
+    chooser = Chooser(rng.normal(size=(len(WITH_EDGES), 5)).astype(np.float32), rng.normal(size=6).astype(np.float32),
+                      features=WITH_EDGES)
+    again = Chooser.from_dict(json.loads(json.dumps(chooser.to_dict())))
+    assert again.features == WITH_EDGES
+    assert Chooser.from_dict({"hidden": np.zeros((len(FEATURES), 2)).tolist(), "output": [0, 0, 0]}).features == FEATURES
+    for features in ([*FEATURES[:-1], "sharpness", "bias"], [*FEATURES[1:], FEATURES[0]], FEATURES[:-1]):
+        with pytest.raises(ValueError, match="known ones, the bias last"):
+            Chooser.from_dict({**chooser.to_dict(), "features": list(features)})
+
+
 def model_with_chooser(folder: Path, bias: float) -> Path:
     """A copy of the shipped card in ``folder`` (its ONNX files linked) whose chooser
     always (bias > 0) or never (bias < 0) takes the accepted match."""
@@ -96,7 +129,8 @@ def test_the_pipeline_uses_the_cards_chooser_instead_of_the_32_px_rule(tmp_path:
     np.testing.assert_allclose(result.disparity[result.valid], expected[result.valid], atol=1e-5)
 
 
-def test_fitting_learns_which_candidate_to_trust(tmp_path: Path):
+@pytest.mark.parametrize("edge_features", [False, True])
+def test_fitting_learns_which_candidate_to_trust(tmp_path: Path, edge_features: bool):
     """Synthetic caches: SGBM's match is right where it lies within 4 px of the network's
     value and wrong (by 20 px) elsewhere, and the network is off by 5 px everywhere. The
     fitted chooser must take the near matches and leave the far ones."""
@@ -113,7 +147,8 @@ def test_fitting_learns_which_candidate_to_trust(tmp_path: Path):
         np.savez(tmp_path / f"scene{index}.npz", gt=gt, RB_network=network,
                  RB_uncertainty=np.ones(shape, np.float32), RB_candidate=candidate,
                  RB_accepted=np.ones(shape, bool), RB_left=rng.random(shape).astype(np.float32))
-    chooser = fit(sorted(tmp_path.glob("*.npz")), hidden=8, steps=300)
+    chooser = fit(sorted(tmp_path.glob("*.npz")), hidden=8, steps=300, edge_features=edge_features)
+    assert chooser.features == (WITH_EDGES if edge_features else FEATURES)
     gt = rng.uniform(5, 50, shape).astype(np.float32)
     near = rng.random(shape) < 0.5
     candidate = np.where(near, gt, gt + 25).astype(np.float32)

@@ -23,6 +23,13 @@ FEATURES = (
     "network_spread", "texture", "agreement_near", "agreement_wide", "bias",
 )
 """The per-pixel inputs of the chooser, in order (:func:`chooser_features`)."""
+EDGE_FEATURES = ("network_jump", "network_side", "candidate_side")
+"""Optional inputs (``train chooser --edge-features``, 2026-12-07): the network's local jump (its highest
+minus its lowest value in a 9 x 9 window) and where the network's value and SGBM's match lie between those two
+(0: the lower surface, 1: the higher), so that a choice at a depth edge can tell a match that took the
+neighbouring surface. A card's chooser names its inputs; one without these computes what it did."""
+WINDOW = 9
+"""Side of the window of :data:`EDGE_FEATURES`' lowest and highest network values."""
 AGREE = 1.0
 """Where SGBM's accepted match lies within this many px of the network's value, it is taken
 without asking the chooser (the two agree; the match is the sharper, sub-pixel one): the
@@ -68,9 +75,11 @@ def disputed(network: np.ndarray, candidate: np.ndarray, accepted: np.ndarray) -
 
 
 def chooser_features(left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
-                     accepted: np.ndarray, *, where: np.ndarray | None = None) -> np.ndarray:
-    """(H, W, len(FEATURES)) float32 features of each pixel (:data:`FEATURES`), or
-    (N, len(FEATURES)) of the N pixels of the (H, W) bool mask ``where``.
+                     accepted: np.ndarray, *, where: np.ndarray | None = None,
+                     names: tuple[str, ...] = FEATURES) -> np.ndarray:
+    """(H, W, len(names)) float32 features of each pixel (``names``: :data:`FEATURES`, the bias last,
+    with :data:`EDGE_FEATURES` before it or not), or (N, len(names)) of the N pixels of the (H, W)
+    bool mask ``where``.
 
     Neighbourhood statistics (box means, the median) need whole images; everything
     per-pixel after them is computed at the ``where`` pixels only (the same values, a third
@@ -106,21 +115,30 @@ def chooser_features(left: np.ndarray, network: np.ndarray, uncertainty: np.ndar
 
     ((picked_difference, picked_held, picked_median, held_moments, agree_near, agree_wide),
      (accepted_share, network_moments, band_moments, band_spread)) = side_by_side(with_match, without_match)
-    planes = [
-        np.minimum(picked_difference, 64) / 32,
-        np.clip(np.where(pick(accepted), pick(candidate) - pick(network), 0), -64, 64) / 32,
-        np.log1p(picked_difference),
-        np.minimum(pick(uncertainty), 32) / 8,
-        accepted_share,
-        np.minimum(_spread(held_moments), 32) / 8,
-        np.minimum(np.abs(picked_held - picked_median), 32) / 8,
-        np.minimum(_spread(network_moments), 32) / 8,
-        np.minimum(_spread(band_moments) / band_spread, 4),
-        agree_near,
-        agree_wide,
-        np.ones_like(picked_held),
-    ]
-    return np.stack([np.asarray(plane, np.float32) for plane in planes], axis=-1)
+    planes = {
+        "difference": np.minimum(picked_difference, 64) / 32,
+        "signed_difference": np.clip(np.where(pick(accepted), pick(candidate) - pick(network), 0), -64, 64) / 32,
+        "log_difference": np.log1p(picked_difference),
+        "uncertainty": np.minimum(pick(uncertainty), 32) / 8,
+        "accepted_share": accepted_share,
+        "candidate_spread": np.minimum(_spread(held_moments), 32) / 8,
+        "candidate_speckle": np.minimum(np.abs(picked_held - picked_median), 32) / 8,
+        "network_spread": np.minimum(_spread(network_moments), 32) / 8,
+        "texture": np.minimum(_spread(band_moments) / band_spread, 4),
+        "agreement_near": agree_near,
+        "agreement_wide": agree_wide,
+        "bias": np.ones_like(picked_held),
+    }
+    if any(name in EDGE_FEATURES for name in names):
+        kernel = np.ones((WINDOW, WINDOW), np.uint8)
+        network32 = np.asarray(network, np.float32)
+        low, high = pick(cv2.erode(network32, kernel)), pick(cv2.dilate(network32, kernel))
+        jump = np.maximum(high - low, 1.0)  # a flat window: both sides read 0 .. 1 around its value
+        planes.update(network_jump=np.minimum(high - low, 64) / 32,
+                      network_side=np.clip((pick(network32) - low) / jump, 0, 1),
+                      candidate_side=np.clip((np.where(pick(accepted), pick(candidate), pick(network32)) - low) / jump,
+                                             -0.5, 1.5))
+    return np.stack([np.asarray(planes[name], np.float32) for name in names], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -128,22 +146,29 @@ class Chooser:
     """A one-hidden-layer perceptron: P(SGBM's match is the better one) per pixel.
 
     Attributes:
-        hidden: (len(FEATURES), n) weights of the hidden layer (its bias is the last feature).
+        hidden: (len(features), n) weights of the hidden layer (its bias is the last feature).
         output: (n + 1,) weights of the output (last: bias).
         threshold: the match is taken where the probability exceeds this.
+        features: its inputs, in order (:data:`FEATURES`, or with :data:`EDGE_FEATURES` before the bias).
     """
 
     hidden: np.ndarray
     output: np.ndarray
     threshold: float = 0.5
+    features: tuple[str, ...] = FEATURES
 
     @classmethod
     def from_dict(cls, values: dict) -> "Chooser":
+        features = tuple(values.get("features", FEATURES))
+        unknown = set(features) - set(FEATURES) - set(EDGE_FEATURES)
+        if unknown or features[-1] != "bias" or len(features) != len(values["hidden"]):
+            raise ValueError(f"a chooser's features must be known ones, the bias last, one row of weights each; "
+                             f"got {list(features)}")
         return cls(np.asarray(values["hidden"], np.float32), np.asarray(values["output"], np.float32),
-                   float(values.get("threshold", 0.5)))
+                   float(values.get("threshold", 0.5)), features)
 
     def to_dict(self) -> dict:
-        return {"features": list(FEATURES), "hidden": self.hidden.tolist(), "output": self.output.tolist(),
+        return {"features": list(self.features), "hidden": self.hidden.tolist(), "output": self.output.tolist(),
                 "threshold": self.threshold}
 
     def probability(self, features: np.ndarray) -> np.ndarray:
@@ -179,7 +204,7 @@ class Chooser:
         the two agree, and at the :func:`disputed` pixels the chooser gives to SGBM."""
         taken = accepted.astype(bool).copy()
         asked = disputed(network, candidate, accepted)
-        features = chooser_features(left, network, uncertainty, candidate, accepted, where=asked)
+        features = chooser_features(left, network, uncertainty, candidate, accepted, where=asked, names=self.features)
         half = self.split(len(features))  # each row's products are the same whichever half holds it
         taken[asked] = np.concatenate(side_by_side(lambda: self.probability(features[:half]),
                                                    lambda: self.probability(features[half:]))) > self.threshold

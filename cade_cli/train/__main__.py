@@ -354,6 +354,9 @@ def chooser(
                                                    "instead of the card's own.")] = None,
     edge_weight: Annotated[float, typer.Option(min=0.0, help="Weigh the pixels within 3 px of a ground-truth "
                                                "depth jump > 2 px 1 + W times more (0: as before).")] = 0.0,
+    edge_features: Annotated[bool, typer.Option(help="Also give the chooser the network's local jump and where "
+                                                "its value and SGBM's match lie between the surfaces around it.")]
+    = False,
 ) -> None:
     """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
     the six cross-band and three same-band tasks of every train-real scene; print its
@@ -372,7 +375,7 @@ def chooser(
     names = scenes.split(",") if scenes else None
     train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
                              candidates=fitted_refinement)
-    chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight)
+    chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight, edge_features=edge_features)
     print(f"train-real CS: {report(score(train, chosen))}")
     if data_dir is not None:
         for name in datasets.split(","):
@@ -390,7 +393,8 @@ def chooser(
                                       + (f"--scenes {scenes} " if scenes else "")
                                       + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
                                       + (f" --candidates {candidates}" if candidates else "")
-                                      + (f" --edge-weight {edge_weight:g}" if edge_weight else ""),
+                                      + (f" --edge-weight {edge_weight:g}" if edge_weight else "")
+                                      + (" --edge-features" if edge_features else ""),
                            "fitted_on_refinement": fitted_refinement}
         path.write_text(json.dumps(card, indent=2) + "\n")
         print(f"wrote the chooser into {path}")

@@ -30,7 +30,7 @@ from cade_cli.evaluation.metrics import score as score_map
 from cade_cli.evaluation.protocols import get_protocol
 from cade_cli.evaluation.regions import EDGE_RADIUS, depth_jumps, near
 from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.chooser import EDGE_FEATURES, FEATURES, Chooser, chooser_features, disputed
 from cade_cli.matching.disparity import densify, visible_in_right_view
 from cade_cli.matching.learned import card_refinement
 from cade_cli.matching.network import NetworkStage
@@ -90,12 +90,18 @@ def tasks_of(cache: Path, tasks: tuple[str, ...] | None = None):
         yield gt, {name: stored[f"{prefix}_{name}"] for name in ("network", "uncertainty", "candidate", "accepted", "left")}
 
 
-def features_of(task: dict) -> np.ndarray:
-    return chooser_features(task["left"], task["network"], task["uncertainty"], task["candidate"], task["accepted"])
+def features_of(task: dict, names: tuple[str, ...] = FEATURES) -> np.ndarray:
+    return chooser_features(task["left"], task["network"], task["uncertainty"], task["candidate"], task["accepted"],
+                            names=names)
+
+
+def feature_names(edge_features: bool) -> tuple[str, ...]:
+    """The chooser's inputs: :data:`FEATURES`, or with :data:`EDGE_FEATURES` before the bias."""
+    return (*FEATURES[:-1], *EDGE_FEATURES, FEATURES[-1]) if edge_features else FEATURES
 
 
 def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000, tasks: tuple[str, ...] | None = None,
-            edge_weight: float = 0.0):
+            edge_weight: float = 0.0, names: tuple[str, ...] = FEATURES):
     """(features, label, weight) of up to ``per_task`` disputed, visible pixels of each task: label 1
     where SGBM's match is nearer the truth; the weight as the module docstring says."""
     xs, ys, ws = [], [], []
@@ -104,7 +110,7 @@ def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000,
         for gt, task in tasks_of(cache, tasks):
             if edges is None and edge_weight > 0:
                 edges = near(depth_jumps(gt), radius=EDGE_RADIUS)
-            features = features_of(task)
+            features = features_of(task, names)
             usable = disputed(task["network"], task["candidate"], task["accepted"]) & np.isfinite(gt)
             usable &= visible_in_right_view(task["network"])  # the pipeline decides there only
             rows, cols = np.nonzero(usable)
@@ -124,13 +130,15 @@ def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000,
 
 
 def fit(caches: list[Path], *, hidden: int = 16, steps: int = 3000, seed: int = 0,
-        tasks: tuple[str, ...] | None = None, edge_weight: float = 0.0) -> Chooser:
+        tasks: tuple[str, ...] | None = None, edge_weight: float = 0.0, edge_features: bool = False) -> Chooser:
     """The chooser fitted on the disputed, visible pixels of ``tasks`` (default: every
-    cached task) of ``caches``, those near a depth jump weighed 1 + ``edge_weight`` times more."""
+    cached task) of ``caches``, those near a depth jump weighed 1 + ``edge_weight`` times more;
+    with ``edge_features`` it also sees :data:`~cade_cli.matching.chooser.EDGE_FEATURES`."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    x, y, w = (torch.from_numpy(a) for a in samples(caches, rng, tasks=tasks, edge_weight=edge_weight))
-    first = torch.nn.Linear(len(FEATURES), hidden, bias=False)  # the bias is the last feature
+    names = feature_names(edge_features)
+    x, y, w = (torch.from_numpy(a) for a in samples(caches, rng, tasks=tasks, edge_weight=edge_weight, names=names))
+    first = torch.nn.Linear(len(names), hidden, bias=False)  # the bias is the last feature
     second = torch.nn.Linear(hidden, 1)
     optimizer = torch.optim.Adam([*first.parameters(), *second.parameters()], lr=1e-2)
     for step in range(steps):
@@ -145,7 +153,7 @@ def fit(caches: list[Path], *, hidden: int = 16, steps: int = 3000, seed: int = 
             print(f"chooser step {step} loss {loss.item():.4f}", flush=True)
     with torch.no_grad():
         output = torch.cat([second.weight[0], second.bias]).numpy()
-        return Chooser(first.weight.T.numpy().copy(), output.copy())
+        return Chooser(first.weight.T.numpy().copy(), output.copy(), features=names)
 
 
 def score(caches: list[Path], chooser: Chooser | None, tasks: tuple[str, ...] | None = CS_TASKS
