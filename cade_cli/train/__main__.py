@@ -234,6 +234,9 @@ def export(
                                                     "rank-sgbm-two-scales (its rejects offered a half-size "
                                                     "SGBM's match) or none (the network's map as it is).")]
     = "rank-sgbm",
+    mask_uncertainty: Annotated[bool, typer.Option(help="cadenet-iterative: its uncertainty output also carries "
+                                                   "its convex mask's doubt (the spread of the candidates it "
+                                                   "blends), for the chooser.")] = False,
 ) -> None:
     """Export CHECKPOINT to ONNX (the trained range and the other range variants), verify each
     against PyTorch, write the JSON card beside them."""
@@ -248,7 +251,7 @@ def export(
         raise typer.BadParameter(f"must be one of {', '.join(RUNTIME_REFINEMENTS)}", param_hint="--runtime-refinement")
     card = export_checkpoint(checkpoint, onnx_path, onnx_path.with_suffix(".json"),
                              extra={"hardware": hardware} if hardware else None, output=output,
-                             runtime_refinement=runtime_refinement)
+                             runtime_refinement=runtime_refinement, mask_uncertainty=mask_uncertainty)
     for variant in card["variants"]:
         path = onnx_path.with_name(variant["file"])
         print(f"wrote {path} ({path.stat().st_size / 1e6:.2f} MB, {variant['levels']} levels), "

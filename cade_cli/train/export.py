@@ -123,13 +123,19 @@ def architecture_text(net, output: str) -> str:
 
 def export_checkpoint(checkpoint: Path, onnx_path: Path, card_path: Path, *, extra: dict | None = None,
                       other_ranges: tuple[int, ...] = OTHER_RANGES, output: str = "disparity",
-                      runtime_refinement: str = "rank-sgbm") -> dict:
+                      runtime_refinement: str = "rank-sgbm", mask_uncertainty: bool = False) -> dict:
     """Export every range variant, verify each against PyTorch, write the JSON card the runtime reads.
+    ``mask_uncertainty``: a ``cadenet-iterative`` network's ``uncertainty`` also carries its convex mask's
+    doubt (:meth:`~cade_cli.train.net_iterative.CadeNetIterative.with_mask_uncertainty`).
 
     The trained width goes to ``onnx_path``, another width of R levels (disparities
     0 .. R - 1) to ``<stem>-R.onnx`` beside it; the card (:mod:`cade_cli.model_card`)
     lists them narrowest first."""
     net, state = load_checkpoint(checkpoint)
+    if mask_uncertainty:
+        if not hasattr(net, "with_mask_uncertainty"):
+            raise ValueError("--mask-uncertainty needs a cadenet-iterative checkpoint")
+        net.with_mask_uncertainty()
     network_input = network_input_of(state["config"].get("training_mode", "cade"), state["config"].get("network_input"))
     if not isinstance(net, CadeNet):
         other_ranges = ()  # the all-2D generation's weights depend on the range: one variant, the pyramid beyond

@@ -71,6 +71,17 @@ def convex_upsample(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: 
     return factor * F.pixel_shuffle(fine, factor)
 
 
+def mixture_spread(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: int) -> torch.Tensor:
+    """(B, 1, h * factor, w * factor): the standard deviation (px of the finer level) of the nine
+    candidates :func:`convex_upsample` blends at each fine pixel, under its weights: 0 where the
+    candidates agree or one weighs all, large where the mask is torn between two surfaces."""
+    weights = convex_weights(mask_logits.float(), factor)
+    candidates = factor * neighbours3x3(disparity.float()).unsqueeze(2)  # (B, 9, 1, h, w)
+    mean = (weights * candidates).sum(dim=1, keepdim=True)
+    variance = (weights * (candidates - mean) ** 2).sum(dim=1)  # (B, factor², h, w)
+    return torch.sqrt(F.pixel_shuffle(variance, factor) + 1e-12)
+
+
 def upsampling_guide(maps, half: torch.Tensor, band: torch.Tensor) -> torch.Tensor:
     """A convex x4 mask's guidance at 1/4: ``maps`` (the left view's 1/4 features, a decoder's
     state: (B, C, h, w) each), and the left view's 1/2 features (B, 16, 2h, 2w) and full-resolution
