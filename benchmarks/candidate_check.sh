@@ -7,7 +7,8 @@
 # Given a model card (a path ending in .json, whose name is NAME) instead of a checkpoint, steps 1 and 2 are
 # skipped: the card is judged as it is (a card that changes only the runtime, e.g. its edge filter).
 # 1. exports CHECKPOINT (a `fit` run's last.pt) as OUT_DIR/NAME.onnx + NAME.json, with the runtime's
-#    rank-SGBM refinement (REFINEMENT: another of `export --runtime-refinement`'s, e.g. rank-sgbm-two-scales);
+#    rank-SGBM refinement (REFINEMENT: another of `export --runtime-refinement`'s, e.g. rank-sgbm-two-scales;
+#    EXPORT_FLAGS: more of `export`'s options, e.g. --mask-uncertainty for a cadenet-iterative checkpoint);
 # 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
 #    (32 hidden units, 4,000 steps, seed 0), and writes it into the card; CHOOSER_CANDIDATES fits it on
 #    another refinement's matches (`train chooser --candidates`, e.g. rank-sgbm under a two-scale card);
@@ -45,7 +46,7 @@ if [[ "$checkpoint" == *.json ]]; then
   card=$checkpoint
 else
 .venv/bin/python -m cade_cli.train export "$checkpoint" --onnx "$out/$name.onnx" \
-  --runtime-refinement "$refinement" --hardware "$hardware"
+  --runtime-refinement "$refinement" --hardware "$hardware" ${EXPORT_FLAGS:-}
 chooser_options=()
 [ -n "${CHOOSER_SCENES:-}" ] && chooser_options=(--scenes "$CHOOSER_SCENES")
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
@@ -67,7 +68,7 @@ done
 {
   echo "# \`$name\` ($checkpoint) against $shipped"
   echo
-  echo "\`${SETS:+SETS='$SETS'} REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
+  echo "\`${SETS:+SETS='$SETS'} ${EXPORT_FLAGS:+EXPORT_FLAGS='$EXPORT_FLAGS'} REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
     "${CARD_EXTRAS:+CARD_EXTRAS='$CARD_EXTRAS'}" \
     "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=$jobs benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
     "($(date -u +%Y-%m-%d), $hardware). Its last step," \

@@ -5,9 +5,11 @@
 # models/cade-v13-accurate-edges.json) and judged by the shipping rule against the shipped accurate tier in the
 # same runs, one thread (the CPU may be shared: scores are exact, times are not). The verdict is the last lines of
 # benchmarks/results/campaign-2026-12-07-extended-ship-check/rule.md; speed (the tier's 3 s/MP) is measured apart, on a quiet
-# CPU, with benchmarks/speed.py. JOBS=2: two scenes at a time, one thread each (the same scores).
+# CPU, with benchmarks/speed.py. JOBS=2: two scenes at a time, one thread each (the same scores). EXPORT_FLAGS
+# --mask-uncertainty: the exported uncertainty carries the convex mask's doubt, which the chooser reads (2026-12-07,
+# docs/research/refinement.md, "the mask's doubt for the chooser").
 cd "$(dirname "$0")/../.."
-REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm \
+REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm EXPORT_FLAGS=--mask-uncertainty \
 CARD_EXTRAS='{"test_time_augmentation": ["upscaled-x1.5"], "runtime_edge_filter": "weighted-median"}' \
 JOBS=2 OMP_NUM_THREADS=1 exec benchmarks/candidate_check.sh runs/campaign-2026-12-07-extended/last.pt \
   cade-v14-accurate benchmarks/results/campaign-2026-12-07-extended-ship-check cade-v13-accurate-edges
