@@ -7,6 +7,7 @@ from typing import Annotated
 
 import typer
 
+from cade_cli.train.chooser_command import chooser
 from cade_cli.train.preview_command import preview
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
@@ -333,76 +334,7 @@ def compact(
     print(f"{checkpoint}: {before / 1e6:.2f} MB -> {target}: {after / 1e6:.2f} MB ({form})")
 
 
-@app.command()
-def chooser(
-    real_dir: Annotated[Path, typer.Option(exists=True, file_okay=False, help="Real training scenes "
-                                           "(../shared/data/train-real, MiddEval3 layout): the chooser is fitted "
-                                           "on these only.")],
-    cache: Annotated[Path, typer.Option(help="Folder for the candidate caches (one npz per scene; reused).")],
-    scenes: Annotated[str | None, typer.Option(help="Fit on these scenes of --real-dir only, comma-separated (those "
-                                               "the network's run held out: fit --real-hold-out); default all.")] = None,
-    model: Annotated[str, typer.Option(help="The network whose candidates are chosen between (card name or path).")]
-    = "cade-v4",
-    data_dir: Annotated[Path | None, typer.Option(help="Folder of the reporting sets, to score the chooser "
-                                                  "against the fixed 32 px rule.")] = None,
-    datasets: Annotated[str, typer.Option(help="Reporting sets scored with --data-dir, comma-separated.")]
-    = "middlebury14,middlebury05,kitti2015,kitti2012,flyingthings3d",
-    hidden: Annotated[int, typer.Option(min=1)] = 32,
-    steps: Annotated[int, typer.Option(min=1)] = 4000,
-    seed: int = 0,
-    write_card: Annotated[bool, typer.Option(help="Store the chooser in the model's card (the runtime then uses "
-                                             "it instead of the 32 px rule).")] = False,
-    candidates: Annotated[str | None, typer.Option(help="Fit on the matches of this runtime refinement "
-                                                   "(rank-sgbm, rank-sgbm-network-range, rank-sgbm-two-scales) "
-                                                   "instead of the card's own.")] = None,
-    edge_weight: Annotated[float, typer.Option(min=0.0, help="Weigh the pixels within 3 px of a ground-truth "
-                                               "depth jump > 2 px 1 + W times more (0: as before).")] = 0.0,
-    edge_features: Annotated[bool, typer.Option(help="Also give the chooser the network's local jump and where "
-                                                "its value and SGBM's match lie between the surfaces around it.")]
-    = False,
-) -> None:
-    """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
-    the six cross-band and three same-band tasks of every train-real scene; print its
-    EPE / BMP3 (all pixels, as the pipeline finishes them) beside the fixed 32 px rule's."""
-    import json
-
-    from cade_cli.model_card import RUNTIME_REFINEMENTS, card_path, read_card
-    from cade_cli.train.chooser import SAME_BAND_TASKS, cache_candidates, fit, report, score
-
-    searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
-    if candidates is not None and candidates not in searched:
-        raise typer.BadParameter(f"must be one of {', '.join(searched)}", param_hint="--candidates")
-    fitted_refinement = candidates or read_card(model).refinement
-    # one cache folder per refinement: a scene's npz is reused as it is
-    suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
-    names = scenes.split(",") if scenes else None
-    train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
-                             candidates=fitted_refinement)
-    chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight, edge_features=edge_features)
-    print(f"train-real CS: {report(score(train, chosen))}")
-    if data_dir is not None:
-        for name in datasets.split(","):
-            files = cache_candidates(name, data_dir, cache / f"{name}{suffix}", model=model,
-                                     candidates=fitted_refinement)
-            print(f"{name} CS: {report(score(files, chosen))}", flush=True)
-            if name.startswith("middlebury"):
-                print(f"{name} same-band: {report(score(files, chosen, SAME_BAND_TASKS))}", flush=True)
-    if write_card:
-        path = card_path(model)
-        card = json.loads(path.read_text())
-        fitted_on = f"train-real ({len(train)} scenes x 6 CS tasks" + (f": {scenes})" if scenes else ")")
-        card["chooser"] = {**chosen.to_dict(), "fitted_on": fitted_on,
-                           "command": f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
-                                      + (f"--scenes {scenes} " if scenes else "")
-                                      + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
-                                      + (f" --candidates {candidates}" if candidates else "")
-                                      + (f" --edge-weight {edge_weight:g}" if edge_weight else "")
-                                      + (" --edge-features" if edge_features else ""),
-                           "fitted_on_refinement": fitted_refinement}
-        path.write_text(json.dumps(card, indent=2) + "\n")
-        print(f"wrote the chooser into {path}")
-
-
+app.command()(chooser)  # its options and body: cade_cli/train/chooser_command.py
 app.command()(preview)  # its options and body: cade_cli/train/preview_command.py
 
 if __name__ == "__main__":
