@@ -16,9 +16,9 @@ a set or region a run lacks shows as "–".
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 from pathlib import Path
+
+from cade_cli.evaluation.records import read_run
 
 SETS = ("middlebury14", "middlebury05", "msir-outdoor", "kitti2012", "kitti2015")
 REGIONS = ("all", "nonocc", "edge", "occ")
@@ -35,7 +35,7 @@ def summary_scores(path: Path, method: str) -> dict[str, float] | None:
     gzipped ``cade benchmark --json`` file; None when the file or the method is not there."""
     if not path.is_file():
         return None
-    for row in json.loads(gzip.decompress(path.read_bytes()))["summary"]:
+    for row in read_run(path)["summary"]:
         if row["method"].split(":")[0] == method:
             return row["scores"]
     return None

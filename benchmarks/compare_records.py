@@ -15,11 +15,11 @@ equal on the scores both carry with ``--new-metrics``. Exit status 0 when nothin
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 import math
 import sys
 from pathlib import Path
+
+from cade_cli.evaluation.records import read_run
 
 KEY = ("dataset", "scene", "protocol", "method", "preprocess", "task")
 
@@ -27,8 +27,7 @@ KEY = ("dataset", "scene", "protocol", "method", "preprocess", "task")
 def records_by_key(path: Path) -> tuple[dict, dict[tuple, dict[str, float]]]:
     """(config, {record key: scores}) of a benchmark JSON file, plain or gzipped (``.json.gz``, as
     docs/bench keeps its largest); degradation "none" when absent."""
-    raw = Path(path).read_bytes()
-    data = json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
+    data = read_run(path)
     records = {}
     for record in data["records"]:
         key = (*(record[name] for name in KEY), record.get("degradation", "none"))

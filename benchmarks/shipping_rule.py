@@ -49,12 +49,11 @@ the verdict stays on all pixels.
 from __future__ import annotations
 
 import argparse
-import gzip
-import json
 import math
 import statistics
 import sys
-from pathlib import Path
+
+from cade_cli.evaluation.records import read_run
 
 MIDDLEBURY = ("middlebury05", "middlebury14")
 """The datasets whose pooled means decide item 1, both protocols."""
@@ -84,8 +83,7 @@ def read_records(paths: list[str]) -> list[dict]:
     (``dataset`` pooled by ``POOLED``)."""
     records = []
     for path in paths:
-        raw = Path(path).read_bytes()
-        run = json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
+        run = read_run(path)
         for record in run["records"]:
             dataset = record.get("dataset", run["config"]["dataset"])
             records.append({**record, "dataset": dataset, "set": POOLED.get(dataset, dataset)})

@@ -279,8 +279,6 @@ def test_the_shipping_rule_pools_every_middlebury_record_and_judges_each_set_by_
 
 
 def test_the_shipping_rule_reads_gzipped_records_as_plain_ones(tmp_path, capsys):
-    import gzip
-
     rule = _shipping_rule()
     rule.TOLERANCES.clear()
     args = ["--shipped", "old", "--candidate", "new"]

@@ -5,7 +5,10 @@ files its pictures under and the reports read.
 
 from __future__ import annotations
 
+import gzip
+import json
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 
 @dataclass(frozen=True)
@@ -35,3 +38,10 @@ class Record:
         if self.degradation == "none":
             del record["degradation"]
         return record
+
+
+def read_run(path: str | Path) -> dict:
+    """A ``cade benchmark --json`` file (its ``config``, ``summary`` and ``records``), plain or gzipped
+    (``.json.gz``: how the repository keeps its larger records)."""
+    raw = Path(path).read_bytes()
+    return json.loads(gzip.decompress(raw) if str(path).endswith(".gz") else raw)
