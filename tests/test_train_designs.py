@@ -21,8 +21,8 @@ from cade_cli.train.export import export_checkpoint, export_onnx, verify_onnx  #
 from cade_cli.train.fit import loss_terms, pick_loss, train  # noqa: E402
 from cade_cli.train.net2d import normalised_correlation  # noqa: E402
 from cade_cli.train.net_iterative import CadeNetIterative  # noqa: E402
-from cade_cli.train.net_blocks import (convex_upsample, convex_weights, expectation, hat_lookup,  # noqa: E402
-                                       mixture_spread)
+from cade_cli.train.net_blocks import (convex_mixture, convex_upsample, convex_weights, expectation,  # noqa: E402
+                                       hat_lookup)
 from cade_cli.train.net_peak import peak_expectation  # noqa: E402
 from cade_cli.train.model import transferable  # noqa: E402
 from cade_cli.train.networks import ARCHITECTURES, network_of  # noqa: E402
@@ -198,14 +198,16 @@ def test_the_mask_evidence_reads_the_correlation_at_each_neighbours_estimate():
     assert evidence[0, 36 + 5, 2, 2] > 0 and evidence[0, 36 + 4, 2, 2] == 0
 
 
-def test_the_mixture_spread_is_zero_where_the_candidates_agree_and_the_split_surfaces_deviation_otherwise():
+def test_the_convex_mixture_spread_is_zero_where_the_candidates_agree_and_the_split_surfaces_deviation_otherwise():
     disparity = torch.zeros(1, 1, 3, 3)
     disparity[..., 2] = 2.0  # the right column of cells lies on a surface 2 px (8 fine px) further
     mask = torch.full((1, 9 * 16, 3, 3), -30.0)
     mask.view(1, 9, 16, 3, 3)[:, 4] = 0.0  # every fine pixel takes its own cell's estimate ...
-    assert torch.allclose(mixture_spread(disparity, mask, 4), torch.zeros(1, 1, 12, 12), atol=1e-5)
+    blend, spread = convex_mixture(disparity, mask, 4)
+    assert torch.equal(blend, convex_upsample(disparity, mask, 4))
+    assert torch.allclose(spread, torch.zeros(1, 1, 12, 12), atol=1e-5)
     mask.view(1, 9, 16, 3, 3)[:, 5] = 0.0  # ... and its right neighbour's, half and half
-    spread = mixture_spread(disparity, mask, 4)
+    spread = convex_mixture(disparity, mask, 4)[1]
     assert torch.allclose(spread[0, 0, 4:8, 4:8], torch.full((4, 4), 4.0), atol=1e-4)  # 0 and 8 px: 4 px apart
     assert torch.allclose(spread[0, 0, 4:8, 8:12], torch.zeros(4, 4), atol=1e-4)  # its neighbour: the border again
 
@@ -216,7 +218,7 @@ def test_the_mask_uncertainty_keeps_the_disparity_and_raises_the_uncertainty_whe
     with torch.no_grad():
         plain = net(left, right)
         torn = net.with_mask_uncertainty()(left, right)
-        spread = mixture_spread(torn["quarter"], torn["mask"], 4)
+        spread = convex_mixture(torn["quarter"], torn["mask"], 4)[1]
     assert net.design["mask_uncertainty"]
     assert torch.equal(plain["disparity"], torn["disparity"])
     assert torch.allclose(torn["uncertainty"], torch.sqrt(plain["uncertainty"] ** 2 + spread ** 2))

@@ -57,6 +57,12 @@ def convex_weights(mask_logits: torch.Tensor, factor: int) -> torch.Tensor:
     return softmax_channels(mask_logits.view(batch, 9, factor * factor, height, width), dim=1)
 
 
+def _mixture(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The convex upsampler's weights (B, 9, factor², h, w) and its nine candidates (B, 9, 1, h, w), px of
+    the finer level, in float32 whatever the autocast (as hat_lookup)."""
+    return convex_weights(mask_logits.float(), factor), factor * neighbours3x3(disparity.float()).unsqueeze(2)
+
+
 def convex_upsample(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: int) -> torch.Tensor:
     """RAFT's learned convex upsampling: ``disparity`` (B, 1, h, w; px of its level) ->
     (B, 1, h * factor, w * factor), px of the finer level (values times ``factor``). Each fine pixel
@@ -64,22 +70,19 @@ def convex_upsample(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: 
     ``mask_logits`` (B, 9 * factor², h, w), which the network predicts from the reference image:
     an edge stays where the image puts it instead of being smeared over a coarse pixel. Written
     with slices, a sum and a DepthToSpace (pixel shuffle), which export well."""
-    weights = convex_weights(mask_logits.float(), factor)  # float32 under bf16 autocast too (as hat_lookup)
-    disparity = disparity.float()
-    candidates = neighbours3x3(disparity).unsqueeze(2)  # (B, 9, 1, h, w)
-    fine = (weights * candidates).sum(dim=1)  # (B, factor², h, w)
-    return factor * F.pixel_shuffle(fine, factor)
+    weights, candidates = _mixture(disparity, mask_logits, factor)
+    return F.pixel_shuffle((weights * candidates).sum(dim=1), factor)
 
 
-def mixture_spread(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: int) -> torch.Tensor:
-    """(B, 1, h * factor, w * factor): the standard deviation (px of the finer level) of the nine
-    candidates :func:`convex_upsample` blends at each fine pixel, under its weights: 0 where the
+def convex_mixture(disparity: torch.Tensor, mask_logits: torch.Tensor, factor: int
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`convex_upsample`'s map and, (B, 1, h * factor, w * factor), the standard deviation (px of the
+    finer level) of the nine candidates it blends at each fine pixel under its weights: 0 where the
     candidates agree or one weighs all, large where the mask is torn between two surfaces."""
-    weights = convex_weights(mask_logits.float(), factor)
-    candidates = factor * neighbours3x3(disparity.float()).unsqueeze(2)  # (B, 9, 1, h, w)
-    mean = (weights * candidates).sum(dim=1, keepdim=True)
-    variance = (weights * (candidates - mean) ** 2).sum(dim=1)  # (B, factor², h, w)
-    return torch.sqrt(F.pixel_shuffle(variance, factor) + 1e-12)
+    weights, candidates = _mixture(disparity, mask_logits, factor)
+    mean = (weights * candidates).sum(dim=1, keepdim=True)  # (B, 1, factor², h, w)
+    variance = (weights * (candidates - mean) ** 2).sum(dim=1)
+    return F.pixel_shuffle(mean[:, 0], factor), torch.sqrt(F.pixel_shuffle(variance, factor) + 1e-12)
 
 
 def upsampling_guide(maps, half: torch.Tensor, band: torch.Tensor) -> torch.Tensor:

@@ -44,8 +44,8 @@ from torch import nn
 
 from cade_cli.train.model import DISPARITY_SCALE, conv2d
 from cade_cli.train.net2d import PRIOR_GAIN, Features2D, Residual2D, normalised_correlation, unit_groups
-from cade_cli.train.net_blocks import (ConvexMask, both_views, convex_upsample, expectation, hat_lookup,
-                                       mixture_spread, neighbours3x3, upsampled, upsampling_guide)
+from cade_cli.train.net_blocks import (ConvexMask, both_views, convex_mixture, convex_upsample, expectation,
+                                       hat_lookup, neighbours3x3, upsampled, upsampling_guide)
 
 DIVISOR = 8
 """Input height and width must be multiples of this (the 1/8 level)."""
@@ -96,7 +96,7 @@ class CadeNetIterative(nn.Module):
 
     def __init__(self, levels: int = 192, features: int = 24, groups: int = 4, width: int = 32, radius: int = 2,
                  steps4: int = 2, steps2: int = 0, blocks: int = 2, mask_evidence: bool = False,
-                 fine_evidence: bool = False, mask_uncertainty: bool = False):
+                 fine_evidence: bool = False):
         super().__init__()
         if levels % 16:
             raise ValueError(f"levels must be a multiple of 16, got {levels}")
@@ -112,9 +112,7 @@ class CadeNetIterative(nn.Module):
             self.design["mask_evidence"] = True
         if fine_evidence:
             self.design["fine_evidence"] = True
-        self.mask_uncertainty = False
-        if mask_uncertainty:
-            self.with_mask_uncertainty()
+        self.mask_uncertainty = False  # an export option: with_mask_uncertainty
         self.features = PyramidFeatures(features, blocks)
         self.prior_gain = nn.Parameter(torch.tensor(PRIOR_GAIN))
         eighth = levels // 8
@@ -133,7 +131,7 @@ class CadeNetIterative(nn.Module):
 
     def with_mask_uncertainty(self) -> "CadeNetIterative":
         """Make ``uncertainty`` also carry the x4 mask's doubt: the root of the sum of squares of the
-        1/8 spread and :func:`~cade_cli.train.net_blocks.mixture_spread` (no weight changes: an export
+        1/8 spread and the spread of :func:`~cade_cli.train.net_blocks.convex_mixture` (no weight changes: an export
         option, ``export --mask-uncertainty``, for the chooser to read where the mask is torn between
         two surfaces). Returns self."""
         if self.steps2:
@@ -225,9 +223,11 @@ class CadeNetIterative(nn.Module):
                 if self.fine_evidence:
                     guide = torch.cat([guide, self.fine_evidence_of(quarter, half_left, half_right)], dim=1)
                 mask = self.mask(guide)
-                out["disparity"] = convex_upsample(quarter, mask, 4)
                 if self.mask_uncertainty:
-                    out["uncertainty"] = torch.sqrt(out["uncertainty"] ** 2 + mixture_spread(quarter, mask, 4) ** 2)
+                    out["disparity"], spread = convex_mixture(quarter, mask, 4)
+                    out["uncertainty"] = torch.sqrt(out["uncertainty"] ** 2 + spread ** 2)
+                else:
+                    out["disparity"] = convex_upsample(quarter, mask, 4)
                 out.update(quarter=quarter, mask=mask)  # what it combines, for cade_cli.train.mask_headroom
                 return out
             half, _ = self.rematched(upsampled(quarter, 2), half_left, half_right, self.update2, self.steps2, 2)

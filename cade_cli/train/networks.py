@@ -33,8 +33,7 @@ def network_of(config: dict) -> nn.Module:
                          width=config.get("width2d", 48), half_channels=config.get("half_channels", 16),
                          refine_channels=config.get("full_refinement", 0), slice_channels=config.get("slice_channels", 0))
     if architecture in BAKEOFF_DESIGNS:
-        extra = {key: True for key in ("mask_evidence", "fine_evidence", "mask_uncertainty")
-                 if config.get(key)}  # cadenet-iterative's
+        extra = {key: True for key in ("mask_evidence", "fine_evidence") if config.get(key)}  # cadenet-iterative's
         return BAKEOFF_DESIGNS[architecture](levels, features=config.get("features2d", 32),
                                              width=config.get("width2d", 48), **extra)
     if architecture != "cadenet":
