@@ -12,6 +12,8 @@
 # 2. fits its own chooser on the real training scenes (train-real), as every shipped card's was
 #    (32 hidden units, 4,000 steps, seed 0), and writes it into the card; CHOOSER_CANDIDATES fits it on
 #    another refinement's matches (`train chooser --candidates`, e.g. rank-sgbm under a two-scale card);
+#    CHOOSER_FLAGS replaces its "--hidden 32 --steps 4000", e.g. "--context --steps 3000" for the
+#    convolutional chooser (cade_cli/matching/chooser_net.py, 2026-12-07);
 # 3. runs `cade benchmark` on the five sets (Middlebury 2005 and 2014, FlyingThings3D, KITTI 2012 and
 #    2015; protocols cs and rgb) and on the real cross-spectral check (msir-outdoor: VIS/NIR pairs of a
 #    real camera array against pseudo ground truth) with the shipped model (SHIPPED, default cade-v13)
@@ -51,7 +53,7 @@ chooser_options=()
 [ -n "${CHOOSER_SCENES:-}" ] && chooser_options=(--scenes "$CHOOSER_SCENES")
 [ -n "${CHOOSER_CANDIDATES:-}" ] && chooser_options+=(--candidates "$CHOOSER_CANDIDATES")
 .venv/bin/python -m cade_cli.train chooser --real-dir "$data/train-real" --cache "$out/chooser-cache" \
-  --model "$out/$name.json" --hidden 32 --steps 4000 --seed 0 --write-card "${chooser_options[@]}"
+  --model "$out/$name.json" ${CHOOSER_FLAGS:---hidden 32 --steps 4000} --seed 0 --write-card "${chooser_options[@]}"
 if [ -n "${CARD_EXTRAS:-}" ]; then
   .venv/bin/python -c "import json, sys; p = sys.argv[1]; card = json.load(open(p)); card.update(json.loads(sys.argv[2]));
 json.dump(card, open(p, 'w'), indent=2)" "$card" "$CARD_EXTRAS"
@@ -69,7 +71,7 @@ done
   echo "# \`$name\` ($checkpoint) against $shipped"
   echo
   echo "\`${SETS:+SETS='$SETS'} ${EXPORT_FLAGS:+EXPORT_FLAGS='$EXPORT_FLAGS'} REFINEMENT=$refinement CHOOSER_CANDIDATES=${CHOOSER_CANDIDATES:-} CHOOSER_SCENES=${CHOOSER_SCENES:-}" \
-    "${CARD_EXTRAS:+CARD_EXTRAS='$CARD_EXTRAS'}" \
+    "${CHOOSER_FLAGS:+CHOOSER_FLAGS='$CHOOSER_FLAGS'}" "${CARD_EXTRAS:+CARD_EXTRAS='$CARD_EXTRAS'}" \
     "OMP_NUM_THREADS=${OMP_NUM_THREADS:-} JOBS=$jobs benchmarks/candidate_check.sh $checkpoint $name $out $shipped\`" \
     "($(date -u +%Y-%m-%d), $hardware). Its last step," \
     "\`benchmarks/shipping_rule.py --shipped cade:$shipped --candidate cade:$name $out/*.json\`, printed:"

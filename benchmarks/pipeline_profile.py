@@ -30,6 +30,8 @@ PARTS = (  # (module, attribute, label): the calls timed, in pipeline order
     ("cade_cli.matching.refinement", "SGBM.compute", "SGBM of the ranks"),
     ("cade_cli.matching.chooser", "chooser_features", "chooser features"),
     ("cade_cli.matching.chooser", "Chooser.probability", "chooser perceptron"),
+    ("cade_cli.matching.chooser_net", "chooser_planes", "chooser planes (the network chooser's input)"),
+    ("cade_cli.matching.chooser_net", "ChooserNet.probability", "chooser network"),
     ("cade_cli.matching.learned", "network_confidence", "confidence"),
 )
 

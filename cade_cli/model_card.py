@@ -31,17 +31,17 @@ CARD_FORMAT = 2
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v13"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate-edges"}
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate-context"}
 """``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v13 since
 2026-11-28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
 passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it the same day
 cade-v12 (step 40,250; passed against cade-v11), cade-v11 from 2026-11-25 to 2026-11-28, cade-v10 on
-2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate-edges since 2026-11-29, cade-v13's
-network with a second pass on the pair enlarged 1.5x fused in and the edge filter last
-(``runtime_edge_filter: weighted-median``), which passed the rule against cade-v13-accurate, better on every
-set but driving RGB's EPE (+0.9 %, inside its tolerance) (models/cade-v13-accurate-edges.md); before it
-cade-v13-accurate (2026-11-28, still shipped: the same without the filter), cade-v12-accurate, and
-cade-v11-accurate from 2026-11-27 to 2026-11-28."""
+2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate-context since 2026-12-07, cade-v13-accurate-edges
+with the convolutional chooser (``chooser.kind: network``, cade_cli/matching/chooser_net.py), which passed the rule
+against it, level or better on every set (models/cade-v13-accurate-context.md); before it cade-v13-accurate-edges
+(2026-11-29, still shipped: cade-v13's network with a second pass on the pair enlarged 1.5x fused in and the edge
+filter last, ``runtime_edge_filter: weighted-median``), cade-v13-accurate (2026-11-28, still shipped: the same
+without the filter), cade-v12-accurate, and cade-v11-accurate from 2026-11-27 to 2026-11-28."""
 
 
 def model_dir() -> Path:
@@ -158,9 +158,12 @@ def network_fingerprint(model: str | Path | None = None) -> dict:
     """What of the card of ``model`` (default: the shipped one) decides a learned method's output,
     as a batch record stores it, so that a changed card re-runs its pairs: the sha256 of every
     network file it names, sorted; its test-time passes, its refinement and its edge filter where they
-    are not the defaults (left out otherwise, so records written before they existed still match)."""
+    are not the defaults, and its convolutional chooser's file where it has one (left out otherwise, so records
+    written before they existed still match)."""
     card = read_card(model or DEFAULT_MODEL)
     fingerprint: dict = {"model_sha256": sorted(variant.sha256 for variant in card.variants)}
+    if card.chooser is not None and "sha256" in card.chooser:
+        fingerprint["chooser_sha256"] = card.chooser["sha256"]
     if card.test_time:
         fingerprint["test_time_augmentation"] = list(card.test_time)
     if card.refinement != ModelCard.refinement:

@@ -15,6 +15,7 @@ from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
 from cade_cli.model_card import read_card
 from cards import card_copy
+from chooser_caches import near_far_agreement, near_far_caches
 from synthetic import render_pair
 
 
@@ -138,28 +139,16 @@ def test_fitting_learns_which_candidate_to_trust(tmp_path: Path, edge_features: 
     from cade_cli.train.chooser import fit
 
     rng = np.random.default_rng(5)
-    shape = (40, 60)
-    for index in range(3):
-        gt = rng.uniform(5, 50, shape).astype(np.float32)
-        network = gt + 5
-        near = rng.random(shape) < 0.5
-        candidate = np.where(near, gt + rng.normal(0, 0.3, shape), gt + 25).astype(np.float32)
-        np.savez(tmp_path / f"scene{index}.npz", gt=gt, RB_network=network,
-                 RB_uncertainty=np.ones(shape, np.float32), RB_candidate=candidate,
-                 RB_accepted=np.ones(shape, bool), RB_left=rng.random(shape).astype(np.float32))
-    chooser = fit(sorted(tmp_path.glob("*.npz")), hidden=8, steps=300, edge_features=edge_features)
+    chooser = fit(near_far_caches(tmp_path, rng), hidden=8, steps=300, edge_features=edge_features)
     assert chooser.features == (WITH_EDGES if edge_features else FEATURES)
-    gt = rng.uniform(5, 50, shape).astype(np.float32)
-    near = rng.random(shape) < 0.5
-    candidate = np.where(near, gt, gt + 25).astype(np.float32)
-    taken = chooser.take(rng.random(shape).astype(np.float32), gt + 5, np.ones(shape, np.float32), candidate,
-                         np.ones(shape, bool))
-    assert (taken == near).mean() > 0.95
+    assert near_far_agreement(chooser, rng) > 0.95
 
 
 def test_both_tiers_name_shipped_cards_whose_choosers_load():
     """--model fast / accurate: each tier's card is shipped, its files verify, and its
-    chooser (fitted by `python -m cade_cli.train chooser`) has the runtime's features."""
+    chooser (fitted by `python -m cade_cli.train chooser`) has the runtime's inputs: the
+    perceptron's features, or the convolutional chooser's planes and a file that verifies."""
+    from cade_cli.matching.chooser_net import PLANES, ChooserNet, load_chooser
     from cade_cli.matching.network import onnx_session
     from cade_cli.model_card import DEFAULT_MODEL, TIERS
 
@@ -169,9 +158,14 @@ def test_both_tiers_name_shipped_cards_whose_choosers_load():
         assert card.name == name
         for variant in card.variants:
             onnx_session(variant.path, variant.sha256)
-        assert card.chooser is not None and card.chooser["features"] == list(FEATURES)
-        chooser = Chooser.from_dict(card.chooser)
-        assert chooser.hidden.shape[0] == len(FEATURES) and chooser.output.shape == (chooser.hidden.shape[1] + 1,)
+        assert card.chooser is not None
+        chooser = load_chooser(card.chooser, card.variants[0].path.parent)
+        if isinstance(chooser, ChooserNet):
+            assert chooser.planes == PLANES
+            onnx_session(chooser.path, chooser.sha256)
+        else:
+            assert chooser.features == FEATURES
+            assert chooser.hidden.shape[0] == len(FEATURES) and chooser.output.shape == (chooser.hidden.shape[1] + 1,)
 
 
 def test_the_edge_weight_weighs_only_the_pixels_near_a_depth_jump(tmp_path: Path):

@@ -7,10 +7,10 @@ on the network's surface: a pixel is invalid where a nearer surface lands left o
 right view, or its match leaves the image) -> refinement
 (:class:`~cade_cli.matching.refinement.RankSgbmRefinement` of the raw bands, at the
 visible pixels only; where SGBM's match and the network disagree, the card's learned
-:class:`~cade_cli.matching.chooser.Chooser` decides which to keep, or without one the
-32 px agreement rule) -> edges (where the card asks for it,
-:func:`~cade_cli.matching.edges.snap_to_edges`: the map's weighted median guided by the left band
-moves depth edges to the image's) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
+:class:`~cade_cli.matching.chooser.Chooser` (or :class:`~cade_cli.matching.chooser_net.ChooserNet`, which
+sees around the pixel) decides which to keep, or without one the 32 px agreement rule) -> edges
+(where the card asks for it, :func:`~cade_cli.matching.edges.snap_to_edges`: the map's weighted median
+guided by the left band moves depth edges to the image's) -> confidence (:func:`~cade_cli.matching.confidence.network_confidence`:
 the network's uncertainty and whether the refinement's SGBM match agreed with it) -> the
 unfilled result (NaN where invalid; filling is the caller's stage,
 :func:`~cade_cli.matching.disparity.densify`).
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from cade_cli.matching.base import DisparityRange, DisparityResult
-from cade_cli.matching.chooser import Chooser
+from cade_cli.matching.chooser_net import load_chooser
 from cade_cli.matching.confidence import network_confidence
 from cade_cli.matching.disparity import visible_in_right_view
 from cade_cli.matching.edges import snap_to_edges
@@ -75,7 +75,7 @@ class LearnedPipeline:
         card = self.network.card()
         if self.refinement is not None and card.refinement != "none":
             weights = card.chooser  # the card's learned choice, else the 32 px rule
-            chooser = Chooser.from_dict(weights) if weights is not None else None
+            chooser = load_chooser(weights, card.variants[0].path.parent) if weights is not None else None
             choose = None if chooser is None else (
                 lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
             refinement = card_refinement(card, self.refinement)

@@ -9,6 +9,13 @@ from typing import Annotated
 import typer
 
 
+def _fit_network(train: list[Path], onnx: Path, *, width: int, steps: int, seed: int):
+    """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx``."""
+    from cade_cli.train.chooser_net import export_net, fit_net
+
+    return export_net(fit_net(train, width=width, steps=steps, seed=seed), onnx)
+
+
 def chooser(
     real_dir: Annotated[Path, typer.Option(exists=True, file_okay=False, help="Real training scenes "
                                            "(../shared/data/train-real, MiddEval3 layout): the chooser is fitted "
@@ -35,6 +42,10 @@ def chooser(
     edge_features: Annotated[bool, typer.Option(help="Also give the chooser the network's local jump and where "
                                                 "its value and SGBM's match lie between the surfaces around it.")]
     = False,
+    context: Annotated[bool, typer.Option(help="Fit the convolutional chooser instead (it sees the feature planes "
+                                          "around each pixel, about 35 px; cade_cli.matching.chooser_net): an ONNX "
+                                          "file beside the card (with --write-card) or in --cache.")] = False,
+    context_width: Annotated[int, typer.Option(min=1, help="--context: channels of its layers.")] = 24,
 ) -> None:
     """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
     the six cross-band and three same-band tasks of every train-real scene; print its
@@ -53,7 +64,15 @@ def chooser(
     names = scenes.split(",") if scenes else None
     train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
                              candidates=fitted_refinement)
-    chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight, edge_features=edge_features)
+    if context and (edge_weight or edge_features):
+        raise typer.BadParameter("the convolutional chooser takes neither --edge-weight nor --edge-features",
+                                 param_hint="--context")
+    if context:
+        onnx = card_path(model).with_name(f"{card_path(model).stem}-chooser.onnx") if write_card else cache / "chooser.onnx"
+        chosen = _fit_network(train, onnx, width=context_width, steps=steps, seed=seed)
+    else:
+        chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight,
+                     edge_features=edge_features)
     print(f"train-real CS: {report(score(train, chosen))}")
     if data_dir is not None:
         for name in datasets.split(","):
@@ -72,7 +91,8 @@ def chooser(
                                       + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
                                       + (f" --candidates {candidates}" if candidates else "")
                                       + (f" --edge-weight {edge_weight:g}" if edge_weight else "")
-                                      + (" --edge-features" if edge_features else ""),
+                                      + (" --edge-features" if edge_features else "")
+                                      + (f" --context --context-width {context_width}" if context else ""),
                            "fitted_on_refinement": fitted_refinement}
         path.write_text(json.dumps(card, indent=2) + "\n")
         print(f"wrote the chooser into {path}")

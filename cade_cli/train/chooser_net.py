@@ -1,0 +1,122 @@
+"""Fit the convolutional chooser (:class:`cade_cli.matching.chooser_net.ChooserNet`) on the candidate caches of
+:func:`cade_cli.train.chooser.cache_candidates` and export it to ONNX.
+
+Its data are the perceptron's (:mod:`cade_cli.train.chooser`): every cached task of the train-real scenes, the
+disputed pixels visible in the right view labelled 1 where SGBM's match is nearer the truth and weighed by how much
+the choice matters (the same weights); but it sees whole crops of the feature planes
+(:func:`~cade_cli.matching.chooser_net.chooser_planes`) instead of single pixels, so it can learn where a pixel
+lies relative to the image's edge and to the two maps' jumps around it. The other pixels of a crop carry no loss.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from cade_cli.io.checksum import file_sha256
+from cade_cli.matching.chooser import disputed
+from cade_cli.matching.chooser_net import PLANES, ChooserNet, chooser_planes
+from cade_cli.matching.disparity import visible_in_right_view
+from cade_cli.train.chooser import BAD, tasks_of
+
+DILATIONS = (1, 2, 4, 8, 1)
+"""The residual 3 x 3 layers' dilations: together with the first layer, 17 px of reach on each side."""
+OPSET = 17
+
+
+class ChooserCNN(nn.Module):
+    """:data:`~cade_cli.matching.chooser_net.PLANES` (B, P, H, W) -> logit (B, 1, H, W) of P(SGBM's match is the
+    better one): a 3 x 3 convolution to ``width`` channels, residual dilated 3 x 3 layers (:data:`DILATIONS`), a
+    1 x 1 convolution to the logit. Zero padding: an image's border reads as no feature, in training as at run time."""
+
+    def __init__(self, planes: int = len(PLANES), width: int = 24):
+        super().__init__()
+        self.entry = nn.Sequential(nn.Conv2d(planes, width, 3, padding=1), nn.ReLU())
+        self.body = nn.ModuleList(nn.Sequential(nn.Conv2d(width, width, 3, padding=d, dilation=d), nn.ReLU())
+                                  for d in DILATIONS)
+        self.out = nn.Conv2d(width, 1, 1)
+
+    def forward(self, planes: torch.Tensor) -> torch.Tensor:
+        x = self.entry(planes)
+        for layer in self.body:
+            x = x + layer(x)
+        return self.out(x)
+
+
+def targets(gt: np.ndarray, task: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) float32 label (1 where SGBM's match is nearer the truth) and weight (0 where the runtime does not ask
+    the chooser: agreeing, rejected or hidden pixels, or no truth), as :func:`cade_cli.train.chooser.samples`."""
+    network, candidate = task["network"], task["candidate"]
+    asked = disputed(network, candidate, task["accepted"]) & np.isfinite(gt) & visible_in_right_view(network)
+    truth = np.where(np.isfinite(gt), gt, 0)
+    error_network, error_candidate = np.abs(network - truth), np.abs(candidate - truth)
+    decisive = (error_candidate <= BAD) != (error_network <= BAD)
+    weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
+    return (error_candidate < error_network).astype(np.float32), np.where(asked, weight, 0).astype(np.float32)
+
+
+def examples(caches: list[Path], tasks: tuple[str, ...] | None = None
+             ) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """(planes (P, H, W) float16, label, weight) of every task of ``caches`` (those named in ``tasks``)."""
+    found = []
+    for cache in caches:
+        for gt, task in tasks_of(cache, tasks):
+            planes = chooser_planes(task["left"], task["network"], task["uncertainty"], task["candidate"],
+                                    task["accepted"])
+            label, weight = targets(gt, task)
+            found.append((torch.from_numpy(planes).half(), torch.from_numpy(label), torch.from_numpy(weight)))
+    return found
+
+
+def fit_net(caches: list[Path], *, width: int = 24, steps: int = 3000, seed: int = 0, crop: int = 96,
+            batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None, log=print) -> ChooserCNN:
+    """The network fitted on random ``crop`` x ``crop`` windows of the tasks of ``caches`` (``batch`` a step, Adam
+    with a cosine from ``lr``): the weighted binary cross-entropy of its logit at the asked pixels (:func:`targets`).
+    Deterministic given ``seed`` and torch's thread count."""
+    rng = np.random.default_rng(seed)
+    torch.manual_seed(seed)
+    data = examples(caches, tasks)
+    if not data:
+        raise ValueError("no cached task to fit on")
+    net = ChooserCNN(len(PLANES), width)
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
+    for step in range(steps):
+        crops = []
+        for _ in range(batch):
+            planes, label, weight = data[rng.integers(len(data))]
+            side_y, side_x = min(crop, planes.shape[1]), min(crop, planes.shape[2])
+            top = rng.integers(0, planes.shape[1] - side_y + 1)
+            left = rng.integers(0, planes.shape[2] - side_x + 1)
+            window = (slice(top, top + side_y), slice(left, left + side_x))
+            crops.append([F.pad(t, (0, crop - side_x, 0, crop - side_y))  # zero weight in any padding
+                          for t in (planes[(slice(None), *window)].float(), label[window], weight[window])])
+        planes, label, weight = (torch.stack(group) for group in zip(*crops))
+        loss = (F.binary_cross_entropy_with_logits(net(planes)[:, 0], label, reduction="none") * weight).sum()
+        loss = loss / weight.sum().clamp_min(1e-6)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        if step % 500 == 0:
+            log(f"chooser network step {step} loss {loss.item():.4f}")
+    return net.eval()
+
+
+def export_net(net: ChooserCNN, path: Path) -> ChooserNet:
+    """Write ``net`` as ONNX (input ``planes``, output ``logit``, height and width dynamic) to ``path`` (through a
+    temporary file: an interrupted export leaves no half-written model); the runtime chooser pinned to it."""
+    example = torch.rand(1, len(PLANES), 64, 96)
+    temporary = path.with_name(path.name + ".tmp")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        torch.onnx.export(net.eval(), (example,), str(temporary), input_names=["planes"], output_names=["logit"],
+                          dynamic_axes={name: {2: "height", 3: "width"} for name in ("planes", "logit")},
+                          opset_version=OPSET, dynamo=False)
+    temporary.replace(path)
+    return ChooserNet(path, file_sha256(path))
