@@ -156,10 +156,10 @@ def test_dasc_speed_times_one_tiny_case_and_both_volumes_agree(monkeypatch, caps
 
 
 def test_network_profile_profiles_the_shipped_network(monkeypatch, capsys):
-    onnx = sorted((ROOT / "models").glob("cade-v*.onnx"))
-    if not onnx:
-        pytest.skip("no network in models/")
-    code = run_script("network_profile.py", str(onnx[0]), "--size", "64x64", "--runs", "1", "--threads", "1",
+    from cade_cli.model_card import read_card
+
+    onnx = read_card().variants[0].path  # the shipped network (models/ also holds a chooser's network)
+    code = run_script("network_profile.py", str(onnx), "--size", "64x64", "--runs", "1", "--threads", "1",
                       monkeypatch=monkeypatch)
     out = capsys.readouterr().out
     assert code == 0, out
