@@ -21,13 +21,13 @@ from chooser_caches import near_far_agreement, near_far_caches
 from synthetic import render_pair
 
 
-def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: int = 4):
+def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: int = 4, separable: bool = False):
     """A small random ChooserCNN (or, with ``bias``, one whose logit is ``bias`` everywhere) and its file."""
     torch = pytest.importorskip("torch")
     from cade_cli.train.chooser_net import ChooserCNN, export_net
 
     torch.manual_seed(seed)
-    net = ChooserCNN(len(PLANES), width)
+    net = ChooserCNN(len(PLANES), width, separable)
     if bias is not None:
         with torch.no_grad():
             net.out.weight.zero_()
@@ -35,9 +35,11 @@ def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: i
     return net, export_net(net, folder / "chooser.onnx")
 
 
-def test_the_file_gives_the_torch_networks_probability_and_strips_add_up_to_one_run(tmp_path: Path, monkeypatch):
+@pytest.mark.parametrize("separable", [False, True])
+def test_the_file_gives_the_torch_networks_probability_and_strips_add_up_to_one_run(tmp_path: Path, monkeypatch,
+                                                                                     separable: bool):
     torch = pytest.importorskip("torch")
-    net, chooser = exported(tmp_path)
+    net, chooser = exported(tmp_path, separable=separable)
     planes = np.random.default_rng(1).normal(0, 1, (len(PLANES), 600, 40)).astype(np.float32)
     with torch.no_grad():
         expected = torch.sigmoid(net(torch.from_numpy(planes)[None]))[0, 0].numpy()

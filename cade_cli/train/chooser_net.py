@@ -32,13 +32,21 @@ OPSET = 17
 class ChooserCNN(nn.Module):
     """:data:`~cade_cli.matching.chooser_net.PLANES` (B, P, H, W) -> logit (B, 1, H, W) of P(SGBM's match is the
     better one): a 3 x 3 convolution to ``width`` channels, residual dilated 3 x 3 layers (:data:`DILATIONS`), a
-    1 x 1 convolution to the logit. Zero padding: an image's border reads as no feature, in training as at run time."""
+    1 x 1 convolution to the logit. Zero padding: an image's border reads as no feature, in training as at run time.
+    ``separable``: each residual layer a depthwise dilated 3 x 3 then a 1 x 1 across channels (the same reach, about
+    half the run time at 24 channels)."""
 
-    def __init__(self, planes: int = len(PLANES), width: int = 24):
+    def __init__(self, planes: int = len(PLANES), width: int = 24, separable: bool = False):
         super().__init__()
         self.entry = nn.Sequential(nn.Conv2d(planes, width, 3, padding=1), nn.ReLU())
-        self.body = nn.ModuleList(nn.Sequential(nn.Conv2d(width, width, 3, padding=d, dilation=d), nn.ReLU())
-                                  for d in DILATIONS)
+
+        def layer(dilation: int) -> nn.Sequential:
+            if separable:
+                return nn.Sequential(nn.Conv2d(width, width, 3, padding=dilation, dilation=dilation, groups=width),
+                                     nn.Conv2d(width, width, 1), nn.ReLU())
+            return nn.Sequential(nn.Conv2d(width, width, 3, padding=dilation, dilation=dilation), nn.ReLU())
+
+        self.body = nn.ModuleList(layer(d) for d in DILATIONS)
         self.out = nn.Conv2d(width, 1, 1)
 
     def forward(self, planes: torch.Tensor) -> torch.Tensor:
@@ -73,17 +81,18 @@ def examples(caches: list[Path], tasks: tuple[str, ...] | None = None
     return found
 
 
-def fit_net(caches: list[Path], *, width: int = 24, steps: int = 3000, seed: int = 0, crop: int = 96,
-            batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None, log=print) -> ChooserCNN:
+def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, steps: int = 3000, seed: int = 0,
+            crop: int = 96, batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None,
+            log=print) -> ChooserCNN:
     """The network fitted on random ``crop`` x ``crop`` windows of the tasks of ``caches`` (``batch`` a step, Adam
     with a cosine from ``lr``): the weighted binary cross-entropy of its logit at the asked pixels (:func:`targets`).
-    Deterministic given ``seed`` and torch's thread count."""
+    Deterministic given ``seed`` and torch's thread count. ``width``, ``separable``: :class:`ChooserCNN`'s."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     data = examples(caches, tasks)
     if not data:
         raise ValueError("no cached task to fit on")
-    net = ChooserCNN(len(PLANES), width)
+    net = ChooserCNN(len(PLANES), width, separable)
     optimizer = torch.optim.Adam(net.parameters(), lr=lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
     for step in range(steps):
