@@ -54,6 +54,11 @@ def _aligned(rows: int, columns: int) -> np.ndarray:
     return buffer[start:start + size].reshape(rows, columns)
 
 
+def logistic(logits: np.ndarray) -> np.ndarray:
+    """float32 probability of each logit (clipped to +-30, where float32's exponential stays finite)."""
+    return (1 / (1 + np.exp(-np.clip(logits, -30, 30)))).astype(np.float32)
+
+
 def _box(image: np.ndarray, side: int) -> np.ndarray:
     return cv2.blur(image.astype(np.float32), (side, side), borderType=cv2.BORDER_REFLECT)
 
@@ -190,7 +195,7 @@ class Chooser:
             cv2.gemm(hidden, self.output[:-1, None], 1.0, None, 0.0, dst=out)
             logits[start:start + len(rows)] = out[:len(rows), 0]
         logits += self.output[-1]
-        return (1 / (1 + np.exp(-np.clip(logits, -30, 30)))).reshape(features.shape[:-1]).astype(np.float32)
+        return logistic(logits).reshape(features.shape[:-1])
 
     @staticmethod
     def split(rows: int) -> int:

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.errors import CadeError
-from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed
+from cade_cli.matching.chooser import FEATURES, Chooser, chooser_features, disputed, logistic
+from cade_cli.matching.network import onnx_session, strips
 from cade_cli.spectral import network_input
 
 PLANES = (*FEATURES[:-1], "band")
@@ -77,7 +78,7 @@ class ChooserNet:
                                                          overlap=STRIP_OVERLAP, divisor=1):
             (out,) = session.run(["logit"], {"planes": np.ascontiguousarray(planes[None, :, start:stop])})
             logits[keep_start:keep_stop] = out[0, 0, keep_start - start:keep_stop - start]
-        return (1 / (1 + np.exp(-np.clip(logits, -30, 30)))).astype(np.float32)
+        return logistic(logits)
 
     def take(self, left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
              accepted: np.ndarray) -> np.ndarray:

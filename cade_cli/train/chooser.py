@@ -100,6 +100,23 @@ def feature_names(edge_features: bool) -> tuple[str, ...]:
     return (*FEATURES[:-1], *EDGE_FEATURES, FEATURES[-1]) if edge_features else FEATURES
 
 
+def asked_pixels(gt: np.ndarray, task: dict) -> np.ndarray:
+    """(H, W) bool: the pixels of a cached task the pipeline asks the chooser about and the truth can judge:
+    disputed, visible in the right view (the pipeline decides there only), with ground truth."""
+    network = task["network"]
+    return disputed(network, task["candidate"], task["accepted"]) & np.isfinite(gt) & visible_in_right_view(network)
+
+
+def choice_targets(network: np.ndarray, candidate: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Label (float32, 1 where SGBM's match is nearer the truth) and weight (as the module docstring says; float64,
+    so that a further factor rounds once, at the caller's cast) of pixels with their network value, SGBM's match and
+    the truth (arrays of one shape, finite truth)."""
+    error_network, error_candidate = np.abs(network - gt), np.abs(candidate - gt)
+    decisive = (error_candidate <= BAD) != (error_network <= BAD)
+    weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
+    return (error_candidate < error_network).astype(np.float32), weight
+
+
 def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000, tasks: tuple[str, ...] | None = None,
             edge_weight: float = 0.0, names: tuple[str, ...] = FEATURES):
     """(features, label, weight) of up to ``per_task`` disputed, visible pixels of each task: label 1
@@ -111,18 +128,12 @@ def samples(caches: list[Path], rng: np.random.Generator, per_task: int = 20000,
             if edges is None and edge_weight > 0:
                 edges = near(depth_jumps(gt), radius=EDGE_RADIUS)
             features = features_of(task, names)
-            usable = disputed(task["network"], task["candidate"], task["accepted"]) & np.isfinite(gt)
-            usable &= visible_in_right_view(task["network"])  # the pipeline decides there only
-            rows, cols = np.nonzero(usable)
+            rows, cols = np.nonzero(asked_pixels(gt, task))
             if len(rows) == 0:
                 continue
             pick = rng.choice(len(rows), size=min(per_task, len(rows)), replace=False)
             rows, cols = rows[pick], cols[pick]
-            error_network = np.abs(task["network"][rows, cols] - gt[rows, cols])
-            error_candidate = np.abs(task["candidate"][rows, cols] - gt[rows, cols])
-            label = (error_candidate < error_network).astype(np.float32)
-            decisive = (error_candidate <= BAD) != (error_network <= BAD)
-            weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
+            label, weight = choice_targets(task["network"][rows, cols], task["candidate"][rows, cols], gt[rows, cols])
             if edges is not None:
                 weight = weight * (1.0 + edge_weight * edges[rows, cols])
             xs.append(features[rows, cols]), ys.append(label), ws.append(weight.astype(np.float32))

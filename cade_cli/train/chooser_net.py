@@ -19,10 +19,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from cade_cli.io.checksum import file_sha256
-from cade_cli.matching.chooser import disputed
 from cade_cli.matching.chooser_net import PLANES, ChooserNet, chooser_planes
-from cade_cli.matching.disparity import visible_in_right_view
-from cade_cli.train.chooser import BAD, tasks_of
+from cade_cli.train.chooser import asked_pixels, choice_targets, tasks_of
 
 DILATIONS = (1, 2, 4, 8, 1)
 """The residual 3 x 3 layers' dilations: together with the first layer, 17 px of reach on each side."""
@@ -57,15 +55,10 @@ class ChooserCNN(nn.Module):
 
 
 def targets(gt: np.ndarray, task: dict) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) float32 label (1 where SGBM's match is nearer the truth) and weight (0 where the runtime does not ask
-    the chooser: agreeing, rejected or hidden pixels, or no truth), as :func:`cade_cli.train.chooser.samples`."""
-    network, candidate = task["network"], task["candidate"]
-    asked = disputed(network, candidate, task["accepted"]) & np.isfinite(gt) & visible_in_right_view(network)
-    truth = np.where(np.isfinite(gt), gt, 0)
-    error_network, error_candidate = np.abs(network - truth), np.abs(candidate - truth)
-    decisive = (error_candidate <= BAD) != (error_network <= BAD)
-    weight = 0.05 + 2.0 * decisive + np.minimum(np.abs(error_candidate - error_network), 10) / 10
-    return (error_candidate < error_network).astype(np.float32), np.where(asked, weight, 0).astype(np.float32)
+    """(H, W) float32 label and weight of a cached task (:func:`cade_cli.train.chooser.choice_targets`), the weight 0
+    where the runtime does not ask the chooser or there is no truth (:func:`cade_cli.train.chooser.asked_pixels`)."""
+    label, weight = choice_targets(task["network"], task["candidate"], np.where(np.isfinite(gt), gt, 0))
+    return label, np.where(asked_pixels(gt, task), weight, 0).astype(np.float32)
 
 
 def examples(caches: list[Path], tasks: tuple[str, ...] | None = None
