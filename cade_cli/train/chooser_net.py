@@ -10,7 +10,6 @@ lies relative to the image's edge and to the two maps' jumps around it. The othe
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,10 +20,10 @@ import torch.nn.functional as F
 from cade_cli.io.checksum import file_sha256
 from cade_cli.matching.chooser_net import PLANES, ChooserNet, chooser_planes
 from cade_cli.train.chooser import asked_pixels, choice_targets, tasks_of
+from cade_cli.train.export import write_onnx
 
 DILATIONS = (1, 2, 4, 8, 1)
 """The residual 3 x 3 layers' dilations: together with the first layer, 17 px of reach on each side."""
-OPSET = 17
 
 
 class ChooserCNN(nn.Module):
@@ -113,12 +112,5 @@ def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, ste
 def export_net(net: ChooserCNN, path: Path) -> ChooserNet:
     """Write ``net`` as ONNX (input ``planes``, output ``logit``, height and width dynamic) to ``path`` (through a
     temporary file: an interrupted export leaves no half-written model); the runtime chooser pinned to it."""
-    example = torch.rand(1, len(PLANES), 64, 96)
-    temporary = path.with_name(path.name + ".tmp")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)
-        torch.onnx.export(net.eval(), (example,), str(temporary), input_names=["planes"], output_names=["logit"],
-                          dynamic_axes={name: {2: "height", 3: "width"} for name in ("planes", "logit")},
-                          opset_version=OPSET, dynamo=False)
-    temporary.replace(path)
+    write_onnx(net.eval(), (torch.rand(1, len(PLANES), 64, 96),), path, ["planes"], ["logit"])
     return ChooserNet(path, file_sha256(path))

@@ -70,14 +70,21 @@ def with_range(net: CadeNet, levels: int) -> CadeNet:
 def export_onnx(net: CadeNet, path: Path, *, output: str = "disparity", sample_size: tuple[int, int] = (192, 256)) -> None:
     """Write ``net`` as ONNX (legacy TorchScript exporter: no onnxscript dependency);
     ``output``: which map becomes the ``disparity`` output (:data:`EXPORT_OUTPUTS`)."""
-    wrapper = ExportWrapper(net, output).eval()
     example = (torch.rand(1, 1, *sample_size), torch.rand(1, 1, *sample_size))
+    write_onnx(ExportWrapper(net, output).eval(), example, path, INPUT_NAMES, OUTPUT_NAMES)
+
+
+def write_onnx(module: torch.nn.Module, example: tuple, path: Path, input_names: list[str],
+               output_names: list[str]) -> None:
+    """``module`` (in eval mode) as ONNX at ``path``: the legacy TorchScript exporter, :data:`OPSET`, every input's
+    and output's height and width (axes 2, 3) dynamic; written through a temporary file, so that an interrupted
+    export leaves no half-written model."""
     temporary = path.with_name(path.name + ".tmp")
     with warnings.catch_warnings():  # "constant folding not applied" for the cost volume's slices
         warnings.simplefilter("ignore", UserWarning)
         torch.onnx.export(
-            wrapper, example, str(temporary), input_names=INPUT_NAMES, output_names=OUTPUT_NAMES,
-            dynamic_axes={name: {2: "height", 3: "width"} for name in INPUT_NAMES + OUTPUT_NAMES},
+            module, example, str(temporary), input_names=input_names, output_names=output_names,
+            dynamic_axes={name: {2: "height", 3: "width"} for name in input_names + output_names},
             opset_version=OPSET, dynamo=False,
         )
     temporary.replace(path)
