@@ -31,13 +31,15 @@ CARD_FORMAT = 2
 MODEL_DIR_ENV = "CADE_MODEL_DIR"
 """Environment variable naming another folder of models and cards."""
 DEFAULT_MODEL = "cade-v13"
-TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate-context"}
+TIERS = {"fast": DEFAULT_MODEL, "accurate": "cade-v13-accurate-synthetic"}
 """``--model fast`` and ``--model accurate``: the shipped card each tier names. fast: cade-v13 since
 2026-11-28 (the fast design's campaign, step 48,750 annealed, with the two-scale refinement; it
 passed Accuracy IV's shipping rule against cade-v12, models/cade-v13.md), before it the same day
 cade-v12 (step 40,250; passed against cade-v11), cade-v11 from 2026-11-25 to 2026-11-28, cade-v10 on
-2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate-context since 2026-12-07, cade-v13-accurate-edges
-with the convolutional chooser (``chooser.kind: network``, cade_cli/matching/chooser_net.py), which passed the rule
+2026-11-25 (docs/research/models.md). accurate: cade-v13-accurate-synthetic since the evening of 2026-12-07,
+cade-v13-accurate-context with its chooser fitted on rendered pairs too, which passed the rule against it, better on
+every set (models/cade-v13-accurate-synthetic.md); before it, from earlier that day, cade-v13-accurate-context
+(still shipped), cade-v13-accurate-edges with the convolutional chooser (``chooser.kind: network``, cade_cli/matching/chooser_net.py), which passed the rule
 against it, level or better on every set (models/cade-v13-accurate-context.md); before it cade-v13-accurate-edges
 (2026-11-29, still shipped: cade-v13's network with a second pass on the pair enlarged 1.5x fused in and the edge
 filter last, ``runtime_edge_filter: weighted-median``), cade-v13-accurate (2026-11-28, still shipped: the same

@@ -486,3 +486,39 @@ def test_no_garbage_collection_lands_inside_a_timed_call_and_the_collector_comes
     with pytest.raises(ZeroDivisionError):
         measure(lambda: 1 / 0)
     assert gc.isenabled()  # also after a call that failed
+
+
+def test_the_model_table_puts_each_models_regional_means_side_by_side_across_runs(tmp_path, capsys):
+    """Two runs against the same shipped card: its row comes from the first run, each candidate's from its own, each
+    cell the mean over the set's records of the protocol (msir-outdoor: every record); a shipped card whose scores
+    differ between the runs is said so."""
+    import importlib.util
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "model_table.py"
+    spec = importlib.util.spec_from_file_location("model_table", script)
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+
+    def run(folder: Path, method: str, m14: tuple[float, float], shipped_edge: float = 30.0, zipped: bool = False):
+        folder.mkdir()
+        records = [{"protocol": "cs", "method": "old", "scores": {"bad3_all": 20.0, "bad3_edge": shipped_edge}},
+                   {"protocol": "rgb", "method": method, "scores": {"bad3_all": 99.0}},  # another protocol: left out
+                   *({"protocol": "cs", "method": method, "scores": {"bad3_all": value}} for value in m14)]
+        text = json.dumps({"config": {"dataset": "middlebury14"}, "records": records})
+        if zipped:
+            (folder / "middlebury14.json.gz").write_bytes(gzip.compress(text.encode()))
+        else:
+            (folder / "middlebury14.json").write_text(text)
+        msir = [{"protocol": "native", "method": method, "scores": {"bad3_all": 2.0}}]
+        (folder / "msir-outdoor.json").write_text(json.dumps({"config": {"dataset": "msir-outdoor"}, "records": msir}))
+
+    run(tmp_path / "a", "new", (18.0, 19.0))
+    run(tmp_path / "b", "other", (21.0, 23.0), zipped=True)
+    text = table.table([tmp_path / "a", tmp_path / "b"], "cs", "bad3")
+    rows = {line.split(" | ")[0][2:]: line.split(" | ")[1:] for line in text.splitlines()[2:]}
+    assert rows["old"][:3] == ["20.00", "–", "30.00"] and rows["new"][0] == "18.50" and rows["other"][0] == "22.00"
+    assert rows["new"][-1].startswith("2.00") and "note" not in capsys.readouterr().err
+    run(tmp_path / "c", "third", (20.0, 20.0), shipped_edge=31.0)
+    text = table.table([tmp_path / "a", tmp_path / "c"], "cs", "bad3")
+    assert "note: old middlebury14 edge differs" in capsys.readouterr().err
+    assert [line for line in text.splitlines() if line.startswith("| old |")][0].split(" | ")[3] == "30.00"

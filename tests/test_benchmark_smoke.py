@@ -40,6 +40,7 @@ SCRIPTS: dict[str, str] = {
     "gpu_data.py": "tests/test_gpu_data.py (a small data folder packed and unpacked)",
     "memory.py": "here: a 96x64 generated pair",
     "msir_alignment.py": "tests/test_msir.py, tests/test_array.py (its rig file, with ../shared/data)",
+    "model_table.py": "tests/test_benchmark.py (the table of generated runs)",
     "msir_pseudo_gt.py": "",
     "network_profile.py": "here: the shipped network on 64x64 bands",
     "pair_check.py": "",

@@ -49,10 +49,10 @@ MinDispAutoOption = Annotated[
 ModelOption = Annotated[
     Optional[str],
     typer.Option("--model", help="Network of the learned methods: a tier, fast (the default: cade-v13, "
-                 "models/cade-v13.md) or accurate (cade-v13-accurate-context: the same network with a second pass on the "
+                 "models/cade-v13.md) or accurate (cade-v13-accurate-synthetic: the same network with a second pass on the "
                  "pair enlarged 1.5x, a chooser that sees around each pixel and depth edges put where the image has "
-                 "them, about three times the time), a shipped card's name (cade-v13, cade-v13-accurate-context, "
-                 "cade-v13-accurate-edges, cade-v13-accurate, cade-v4; older models are retired, docs/research/models.md), the path of a "
+                 "them, about three times the time), a shipped card's name (cade-v13, cade-v13-accurate-synthetic, "
+                 "cade-v13-accurate-context, cade-v13-accurate-edges, cade-v13-accurate, cade-v4; older models are retired, docs/research/models.md), the path of a "
                  "model card (.json, its ONNX files beside it, as `python -m cade_cli.train export` writes them) or "
                  "a card name in the model folder ($CADE_MODEL_DIR, default the shipped models/)."),
 ]

@@ -28,6 +28,44 @@ def _score_reporting_sets(chosen, data_dir: Path, datasets: list[str], cache: Pa
             print(f"{name} same-band: {report(score(files, chosen, SAME_BAND_TASKS))}", flush=True)
 
 
+def _training_caches(real_dir: Path, folder: Path, scenes: str | None, model: str, refinement: str) -> list[Path]:
+    """The candidate caches of the real training scenes (those named in ``scenes``, comma-separated; default all)."""
+    from cade_cli.train.chooser import cache_candidates
+
+    names = scenes.split(",") if scenes else None
+    return cache_candidates("middeval3", real_dir, folder, model=model, scenes=names, candidates=refinement)
+
+
+def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidates, edge_weight, edge_features,
+                context, context_width, context_separable, synthetic, textures, real_scenes, refinement) -> dict:
+    """A card's record of where and how its chooser was fitted: the command's options as given."""
+    command = (f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
+               + (f"--scenes {scenes} " if scenes else "")
+               + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
+               + (f" --candidates {candidates}" if candidates else "")
+               + (f" --edge-weight {edge_weight:g}" if edge_weight else "")
+               + (" --edge-features" if edge_features else "")
+               + (f" --context --context-width {context_width}" if context else "")
+               + (" --context-separable" if context and context_separable else "")
+               + (f" --synthetic {synthetic} --textures {textures}" if synthetic else ""))
+    fitted_on = (f"train-real ({real_scenes} scenes x 6 cross-band and 3 same-band tasks"
+                 + (f": {scenes})" if scenes else ")") + (f" and {synthetic} rendered pairs" if synthetic else ""))
+    return {"fitted_on": fitted_on, "command": command, "fitted_on_refinement": refinement}
+
+
+def _write_card(model: str, chooser: dict) -> None:
+    """Store ``chooser`` (the fitted chooser's dict with where and how it was fitted) in ``model``'s card."""
+    import json
+
+    from cade_cli.model_card import card_path
+
+    path = card_path(model)
+    card = json.loads(path.read_text())
+    card["chooser"] = chooser
+    path.write_text(json.dumps(card, indent=2) + "\n")
+    print(f"wrote the chooser into {path}")
+
+
 def chooser(
     real_dir: Annotated[Path, typer.Option(exists=True, file_okay=False, help="Real training scenes "
                                            "(../shared/data/train-real, MiddEval3 layout): the chooser is fitted "
@@ -60,49 +98,48 @@ def chooser(
     context_width: Annotated[int, typer.Option(min=1, help="--context: channels of its layers.")] = 24,
     context_separable: Annotated[bool, typer.Option(help="--context: depthwise-separable layers (about half the "
                                                     "run time at 24 channels).")] = False,
+    synthetic: Annotated[int, typer.Option(min=0, help="Also fit on this many freshly rendered pairs, which the "
+                                           "network never saw (the training campaign's scene generator; needs "
+                                           "--textures; cached in --cache; cade_cli.train.chooser_synthetic).")] = 0,
+    textures: Annotated[Path | None, typer.Option(exists=True, file_okay=False, help="--synthetic: the texture "
+                                                  "folder the scenes are rendered from (../shared/data/textures).")]
+    = None,
 ) -> None:
     """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
     the six cross-band and three same-band tasks of every train-real scene; print its
     EPE / BMP3 (all pixels, as the pipeline finishes them) beside the fixed 32 px rule's."""
-    import json
-
     from cade_cli.model_card import RUNTIME_REFINEMENTS, card_path, read_card
-    from cade_cli.train.chooser import cache_candidates, fit, report, score
+    from cade_cli.train.chooser import fit, report, score
 
     searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
     if candidates is not None and candidates not in searched:
         raise typer.BadParameter(f"must be one of {', '.join(searched)}", param_hint="--candidates")
-    fitted_refinement = candidates or read_card(model).refinement
-    # one cache folder per refinement: a scene's npz is reused as it is
-    suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
-    names = scenes.split(",") if scenes else None
-    train = cache_candidates("middeval3", real_dir, cache / f"train-real{suffix}", model=model, scenes=names,
-                             candidates=fitted_refinement)
     if context and (edge_weight or edge_features):
         raise typer.BadParameter("the convolutional chooser takes neither --edge-weight nor --edge-features",
                                  param_hint="--context")
+    if synthetic and textures is None:
+        raise typer.BadParameter("rendering pairs needs --textures", param_hint="--synthetic")
+    fitted_refinement = candidates or read_card(model).refinement
+    # one cache folder per refinement: a scene's npz is reused as it is
+    suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
+    train = _training_caches(real_dir, cache / f"train-real{suffix}", scenes, model, fitted_refinement)
+    if synthetic:
+        from cade_cli.train.chooser_synthetic import cache_synthetic
+
+        train += cache_synthetic(cache / f"synthetic{suffix}", model=model, count=synthetic, seed=0,
+                                 textures=textures, real_dir=real_dir, candidates=fitted_refinement)
     if context:
         onnx = card_path(model).with_name(f"{card_path(model).stem}-chooser.onnx") if write_card else cache / "chooser.onnx"
         chosen = _fit_network(train, onnx, width=context_width, separable=context_separable, steps=steps, seed=seed)
     else:
         chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight,
                      edge_features=edge_features)
-    print(f"train-real CS: {report(score(train, chosen))}")
+    print(f"train-real CS: {report(score(train[:len(train) - synthetic], chosen))}")
     if data_dir is not None:
         _score_reporting_sets(chosen, data_dir, datasets.split(","), cache, suffix, model, fitted_refinement)
     if write_card:
-        path = card_path(model)
-        card = json.loads(path.read_text())
-        fitted_on = f"train-real ({len(train)} scenes x 6 CS tasks" + (f": {scenes})" if scenes else ")")
-        card["chooser"] = {**chosen.to_dict(), "fitted_on": fitted_on,
-                           "command": f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
-                                      + (f"--scenes {scenes} " if scenes else "")
-                                      + f"--model {model} --hidden {hidden} --steps {steps} --seed {seed} --write-card"
-                                      + (f" --candidates {candidates}" if candidates else "")
-                                      + (f" --edge-weight {edge_weight:g}" if edge_weight else "")
-                                      + (" --edge-features" if edge_features else "")
-                                      + (f" --context --context-width {context_width}" if context else "")
-                                      + (" --context-separable" if context and context_separable else ""),
-                           "fitted_on_refinement": fitted_refinement}
-        path.write_text(json.dumps(card, indent=2) + "\n")
-        print(f"wrote the chooser into {path}")
+        _write_card(model, {**chosen.to_dict(), **_provenance(
+            real_dir=real_dir, cache=cache, scenes=scenes, model=model, hidden=hidden, steps=steps, seed=seed,
+            candidates=candidates, edge_weight=edge_weight, edge_features=edge_features, context=context,
+            context_width=context_width, context_separable=context_separable, synthetic=synthetic,
+            textures=textures, real_scenes=len(train) - synthetic, refinement=fitted_refinement)})

@@ -8,10 +8,11 @@
 # CPU, with benchmarks/speed.py. JOBS=2: two scenes at a time, one thread each (the same scores). EXPORT_FLAGS
 # --mask-uncertainty: the exported uncertainty carries the convex mask's doubt, which the chooser reads (2026-12-07,
 # docs/research/refinement.md, "the mask's doubt for the chooser"). CHOOSER_FLAGS: its chooser is the convolutional one, as the
-# shipped accurate tier's since 2026-12-07 (docs/research/refinement.md, "a chooser that sees around the pixel"), judged
-# against that tier, cade-v13-accurate-context.
+# shipped accurate tier's since 2026-12-07 (docs/research/refinement.md, "a chooser that sees around the pixel"), fitted on
+# 162 rendered pairs too, as the tier's since that evening ("rendered pairs for the chooser"), judged against that tier,
+# cade-v13-accurate-synthetic.
 cd "$(dirname "$0")/../.."
-REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm EXPORT_FLAGS=--mask-uncertainty CHOOSER_FLAGS="--context --steps 3000" \
+REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm EXPORT_FLAGS=--mask-uncertainty CHOOSER_FLAGS="--context --steps 3000 --synthetic 162 --textures $PWD/../shared/data/textures" \
 CARD_EXTRAS='{"test_time_augmentation": ["upscaled-x1.5"], "runtime_edge_filter": "weighted-median"}' \
 JOBS=2 OMP_NUM_THREADS=1 exec benchmarks/candidate_check.sh runs/campaign-2026-12-07-extended/last.pt \
-  cade-v14-accurate benchmarks/results/campaign-2026-12-07-extended-ship-check cade-v13-accurate-context
+  cade-v14-accurate benchmarks/results/campaign-2026-12-07-extended-ship-check cade-v13-accurate-synthetic

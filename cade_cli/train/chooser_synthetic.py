@@ -1,0 +1,93 @@
+"""Rendered pairs for the chooser's fit (``python -m cade_cli.train chooser --synthetic N``, 2026-12-07).
+
+The chooser learns from the network's and SGBM's errors. On the 18 real training scenes those errors are too few and
+too mild: the network trained on those very scenes (``fit --real-share``), so it rarely misses there, and a chooser
+fitted on them sees few of the misses it must catch on scenes the network never saw. A freshly rendered pair is one
+the network has never seen, with exact truth at every pixel, and there is no end of them. :func:`cache_synthetic`
+renders them with the training campaign's scene generator and levers (procedural and floating scenes, thin
+structures, grounds, shadows, one view changed, a misaligned right view) and stores the candidates of each exactly as
+:func:`~cade_cli.train.chooser.cache_candidates` stores a real scene's task, so the fit reads both alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from cade_cli.matching.base import DisparityRange
+from cade_cli.matching.learned import card_refinement
+from cade_cli.matching.network import NetworkStage
+from cade_cli.matching.refinement import RankSgbmRefinement
+from cade_cli.spectral import BAND_NAMES, synthesize_bands
+
+SIZE = (384, 448)
+"""(height, width) of a rendered pair: about a real training scene's size (~370 x 430)."""
+LEVELS = 128
+"""The scenes' disparities lie below this many px (times a per-scene share, :data:`LEVERS` ``scene_range``)."""
+LEVERS = {"misaligned": 0.3, "scene_range": 0.25, "ground": 0.3, "shadows": 0.3, "thin": 0.3, "floating": 0.5,
+          "asymmetric": 0.3}
+"""The scene generator's levers (:func:`~cade_cli.train.batches.generated_scene`), as the training campaign
+draws them (``runs/campaign-2026-12-07-extended/config.json``)."""
+MARGIN = 1.15
+"""The searched range is the pair's largest disparity times this (and 4 px more), as a dataset's stated range
+(a Middlebury scene's ``ndisp``) lies a little above its largest disparity."""
+PREFIX = "synthetic"
+"""The task name of a rendered pair in its cache (:func:`~cade_cli.train.chooser.tasks_of` reads it)."""
+
+
+def rendered_bands(rng: np.random.Generator, pool, real, size: tuple[int, int] = SIZE, levels: int = LEVELS
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[str, str]]:
+    """(left band, right band, truth, (left band name, right band name)) of one freshly rendered scene (textures
+    from the :class:`~cade_cli.train.textures.TexturePool` ``pool``, floating objects' backgrounds also from the
+    :class:`~cade_cli.train.real.RealScenes` ``real`` or None): two of its eleven bands (METHOD.md section 2, the
+    same mix in both views) drawn independently, on the 0-255 scale of an 8-bit camera, as float32."""
+    from cade_cli.train.batches import generated_scene
+    from cade_cli.train.pairs import both_views_bands
+
+    scene = generated_scene(rng, pool, *size, levels, real=real, **LEVERS)
+    left_bands, right_bands = both_views_bands(scene, rng)
+    names = tuple(str(name) for name in rng.choice(BAND_NAMES, size=2))
+    left, right = (np.clip(bands[name], 0, 1).astype(np.float32) * 255 for bands, name in
+                   zip((left_bands, right_bands), names))
+    return left, right, scene.disparity.astype(np.float32), names
+
+
+def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: Path, real_dir: Path | None = None,
+                    candidates: str | None = None, size: tuple[int, int] = SIZE,
+                    levels: int = LEVELS) -> list[Path]:
+    """``count`` npz files in ``out`` (each kept when it exists: pair ``i`` is drawn from its own stream of
+    (``seed``, ``i``), so a cache grows or resumes without changing its other pairs), each one rendered pair's
+    truth and the candidates of ``model``'s network and its card's refinement (or the one ``candidates`` names),
+    under the task name :data:`PREFIX` (with its right band, ``synthetic_right``, beside the
+    arrays); returns the files. ``size``: (height, width) of the pairs; ``levels``: their
+    disparities lie below this (:data:`LEVELS`)."""
+    from cade_cli.train.real import RealScenes
+    from cade_cli.train.textures import TexturePool
+
+    out.mkdir(parents=True, exist_ok=True)
+    pool = TexturePool([textures])
+    real = RealScenes(real_dir) if real_dir is not None else None
+    network = NetworkStage(model=model)
+    card = network.card()
+    refinement = card_refinement(card if candidates is None else replace(card, refinement=candidates),
+                                 RankSgbmRefinement())
+    files = []
+    for index in range(count):
+        target = out / f"{PREFIX}-{seed}-{index:04d}.npz"
+        files.append(target)
+        if target.exists():
+            continue
+        left, right, gt, names = rendered_bands(np.random.default_rng([seed, index]), pool, real, size, levels)
+        span = int(np.ceil(np.nanmax(gt) * MARGIN)) + 4
+        estimate = network.estimate(left, right, DisparityRange(0, span))
+        candidate, accepted = refinement.candidate(left, right, estimate.disparity, span)
+        stored = {"gt": gt, f"{PREFIX}_network": estimate.disparity, f"{PREFIX}_uncertainty": estimate.uncertainty,
+                  f"{PREFIX}_candidate": candidate, f"{PREFIX}_accepted": accepted, f"{PREFIX}_left": left,
+                  f"{PREFIX}_right": right}
+        temporary = target.with_suffix(".partial.npz")
+        np.savez_compressed(temporary, **stored)
+        temporary.replace(target)  # an interrupted cache leaves no half-written pair behind
+        print(f"cached rendered pair {index} ({names[0]} against {names[1]}, up to {span} px)", flush=True)
+    return files
