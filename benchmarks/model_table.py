@@ -7,7 +7,8 @@ difference is reported).
 
     .venv/bin/python benchmarks/model_table.py RUN_DIR... [--protocol cs] [--metric bad3] [--markdown T.md]
 
-A run folder holds ``<set>.json`` or ``<set>.json.gz`` files. Columns: Middlebury 2014 and 2005 on all,
+A run folder holds ``<set>.json`` or ``<set>.json.gz`` files (other JSON files there, such as model cards, are
+skipped). Columns: Middlebury 2014 and 2005 on all,
 non-occluded and depth-edge pixels, msir-outdoor (its native protocol) on all pixels.
 """
 
@@ -32,6 +33,8 @@ def run_files(folder: Path) -> list[Path]:
 def means(path: Path, protocol: str, metric: str) -> dict[tuple[str, str, str], float]:
     """{(method, set, region): mean score} of one run file, the records of ``protocol`` (msir-outdoor: all)."""
     data = read_run(path)
+    if "records" not in data:  # another JSON in the folder (a model card): not a run
+        return {}
     found: dict[tuple[str, str, str], list[float]] = {}
     for record in data["records"]:
         dataset = record.get("dataset", data["config"]["dataset"])

@@ -513,6 +513,7 @@ def test_the_model_table_puts_each_models_regional_means_side_by_side_across_run
         (folder / "msir-outdoor.json").write_text(json.dumps({"config": {"dataset": "msir-outdoor"}, "records": msir}))
 
     run(tmp_path / "a", "new", (18.0, 19.0))
+    (tmp_path / "a" / "new.json").write_text(json.dumps({"format": 2, "name": "new"}))  # a card beside the runs
     run(tmp_path / "b", "other", (21.0, 23.0), zipped=True)
     text = table.table([tmp_path / "a", tmp_path / "b"], "cs", "bad3")
     rows = {line.split(" | ")[0][2:]: line.split(" | ")[1:] for line in text.splitlines()[2:]}

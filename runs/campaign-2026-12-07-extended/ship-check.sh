@@ -12,7 +12,7 @@
 # 162 rendered pairs too, as the tier's since that evening ("rendered pairs for the chooser"), judged against that tier,
 # cade-v13-accurate-synthetic.
 cd "$(dirname "$0")/../.."
-REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm EXPORT_FLAGS=--mask-uncertainty CHOOSER_FLAGS="--context --steps 3000 --synthetic 162 --textures $PWD/../shared/data/textures" \
+REFINEMENT=rank-sgbm-two-scales CHOOSER_CANDIDATES=rank-sgbm EXPORT_FLAGS=--mask-uncertainty CHOOSER_FLAGS="--context --steps 3000 --synthetic 162 --textures ../shared/data/textures" \
 CARD_EXTRAS='{"test_time_augmentation": ["upscaled-x1.5"], "runtime_edge_filter": "weighted-median"}' \
 JOBS=2 OMP_NUM_THREADS=1 exec benchmarks/candidate_check.sh runs/campaign-2026-12-07-extended/last.pt \
   cade-v14-accurate benchmarks/results/campaign-2026-12-07-extended-ship-check cade-v13-accurate-synthetic
