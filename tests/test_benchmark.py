@@ -501,15 +501,16 @@ def test_the_model_table_puts_each_models_regional_means_side_by_side_across_run
 
     def run(folder: Path, method: str, m14: tuple[float, float], shipped_edge: float = 30.0, zipped: bool = False):
         folder.mkdir()
-        records = [{"protocol": "cs", "method": "old", "scores": {"bad3_all": 20.0, "bad3_edge": shipped_edge}},
-                   {"protocol": "rgb", "method": method, "scores": {"bad3_all": 99.0}},  # another protocol: left out
-                   *({"protocol": "cs", "method": method, "scores": {"bad3_all": value}} for value in m14)]
+        records = [{"protocol": "cs", "method": "old",
+                    "scores": {"epe_all": 1.0, "bad3_all": 20.0, "epe_edge": 2.0, "bad3_edge": shipped_edge}},
+                   {"protocol": "rgb", "method": method, "scores": {"epe_all": 9.0, "bad3_all": 99.0}},  # another protocol: left out
+                   *({"protocol": "cs", "method": method, "scores": {"epe_all": 1.0, "bad3_all": value}} for value in m14)]
         text = json.dumps({"config": {"dataset": "middlebury14"}, "records": records})
         if zipped:
             (folder / "middlebury14.json.gz").write_bytes(gzip.compress(text.encode()))
         else:
             (folder / "middlebury14.json").write_text(text)
-        msir = [{"protocol": "native", "method": method, "scores": {"bad3_all": 2.0}}]
+        msir = [{"protocol": "native", "method": method, "scores": {"epe_all": 0.5, "bad3_all": 2.0}}]
         (folder / "msir-outdoor.json").write_text(json.dumps({"config": {"dataset": "msir-outdoor"}, "records": msir}))
 
     run(tmp_path / "a", "new", (18.0, 19.0))

@@ -69,8 +69,6 @@ class ChooserNet:
     def probability(self, planes: np.ndarray) -> np.ndarray:
         """(H, W) float32 probability from :func:`chooser_planes`' (P, H, W), in row strips (each run on
         :data:`STRIP_OVERLAP` more rows than it keeps, so the strips add up to one run's result)."""
-        from cade_cli.matching.network import onnx_session, strips
-
         session = onnx_session(self.path, self.sha256)
         _, height, width = planes.shape
         logits = np.empty((height, width), np.float32)

@@ -48,6 +48,25 @@ CS_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("cs").tasks
 SAME_BAND_TASKS = tuple(task.name.replace(">", "") for task in get_protocol("rgb").tasks)
 
 
+def candidate_stages(model: str, candidates: str | None = None) -> tuple[NetworkStage, RankSgbmRefinement]:
+    """``model``'s network and the refinement its card's ``runtime_refinement`` names (or ``candidates`` names)."""
+    network = NetworkStage(model=model)
+    card = network.card()
+    if candidates is not None:
+        card = replace(card, refinement=candidates)
+    return network, card_refinement(card, RankSgbmRefinement())
+
+
+def task_candidates(network: NetworkStage, refinement: RankSgbmRefinement, left: np.ndarray, right: np.ndarray,
+                    span: int, key: str) -> dict[str, np.ndarray]:
+    """One task's cached arrays, named ``{key}_{name}``: the network's map and uncertainty over 0 .. ``span`` px,
+    SGBM's match and where SGBM accepted it, and the left band (what :func:`tasks_of` reads back)."""
+    estimate = network.estimate(left, right, DisparityRange(0, span))
+    candidate, accepted = refinement.candidate(left, right, estimate.disparity, span)
+    return {f"{key}_network": estimate.disparity, f"{key}_uncertainty": estimate.uncertainty,
+            f"{key}_candidate": candidate, f"{key}_accepted": accepted, f"{key}_left": left}
+
+
 def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
                      scenes: Sequence[str] | None = None, candidates: str | None = None) -> list[Path]:
     """One npz per scene of ``dataset`` (all, or those named in ``scenes``) in ``out`` (kept
@@ -55,11 +74,7 @@ def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
     every task of :data:`PROTOCOLS`; returns the files. The refinement is the one the card's
     ``runtime_refinement`` names, or the one ``candidates`` names."""
     out.mkdir(parents=True, exist_ok=True)
-    network = NetworkStage(model=model)
-    card = network.card()
-    if candidates is not None:
-        card = replace(card, refinement=candidates)
-    refinement = card_refinement(card, RankSgbmRefinement())
+    network, refinement = candidate_stages(model, candidates)
     files = []
     for scene in get_dataset(dataset)(data_dir, scenes=scenes):
         target = out / f"{scene.name.replace('/', '-')}.npz"
@@ -69,11 +84,7 @@ def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
         stored = {"gt": scene.disparity.astype(np.float32)}
         for task in (task for protocol in PROTOCOLS for task in get_protocol(protocol).tasks):
             left, right = task.bands(scene.left, scene.right)
-            estimate = network.estimate(left, right, DisparityRange(0, scene.max_disp))
-            candidate, accepted = refinement.candidate(left, right, estimate.disparity, scene.max_disp)
-            key = task.name.replace(">", "")
-            stored.update({f"{key}_network": estimate.disparity, f"{key}_uncertainty": estimate.uncertainty,
-                           f"{key}_candidate": candidate, f"{key}_accepted": accepted, f"{key}_left": left})
+            stored.update(task_candidates(network, refinement, left, right, scene.max_disp, task.name.replace(">", "")))
         np.savez_compressed(target, **stored)
         print(f"cached {dataset} {scene.name}", flush=True)
     return files

@@ -6,21 +6,18 @@ fitted on them sees few of the misses it must catch on scenes the network never 
 the network has never seen, with exact truth at every pixel, and there is no end of them. :func:`cache_synthetic`
 renders them with the training campaign's scene generator and levers (procedural and floating scenes, thin
 structures, grounds, shadows, one view changed, a misaligned right view) and stores the candidates of each exactly as
-:func:`~cade_cli.train.chooser.cache_candidates` stores a real scene's task, so the fit reads both alike.
+:func:`~cade_cli.train.chooser.cache_candidates` stores a real scene's task (both call
+:func:`~cade_cli.train.chooser.task_candidates`), so the fit reads both alike.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from cade_cli.matching.base import DisparityRange
-from cade_cli.matching.learned import card_refinement
-from cade_cli.matching.network import NetworkStage
-from cade_cli.matching.refinement import RankSgbmRefinement
-from cade_cli.spectral import BAND_NAMES, synthesize_bands
+from cade_cli.spectral import BAND_NAMES
+from cade_cli.train.chooser import candidate_stages, task_candidates
 
 SIZE = (384, 448)
 """(height, width) of a rendered pair: about a real training scene's size (~370 x 430)."""
@@ -69,10 +66,7 @@ def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: P
     out.mkdir(parents=True, exist_ok=True)
     pool = TexturePool([textures])
     real = RealScenes(real_dir) if real_dir is not None else None
-    network = NetworkStage(model=model)
-    card = network.card()
-    refinement = card_refinement(card if candidates is None else replace(card, refinement=candidates),
-                                 RankSgbmRefinement())
+    network, refinement = candidate_stages(model, candidates)
     files = []
     for index in range(count):
         target = out / f"{PREFIX}-{seed}-{index:04d}.npz"
@@ -81,11 +75,7 @@ def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: P
             continue
         left, right, gt, names = rendered_bands(np.random.default_rng([seed, index]), pool, real, size, levels)
         span = int(np.ceil(np.nanmax(gt) * MARGIN)) + 4
-        estimate = network.estimate(left, right, DisparityRange(0, span))
-        candidate, accepted = refinement.candidate(left, right, estimate.disparity, span)
-        stored = {"gt": gt, f"{PREFIX}_network": estimate.disparity, f"{PREFIX}_uncertainty": estimate.uncertainty,
-                  f"{PREFIX}_candidate": candidate, f"{PREFIX}_accepted": accepted, f"{PREFIX}_left": left,
-                  f"{PREFIX}_right": right}
+        stored = {"gt": gt, **task_candidates(network, refinement, left, right, span, PREFIX), f"{PREFIX}_right": right}
         temporary = target.with_suffix(".partial.npz")
         np.savez_compressed(temporary, **stored)
         temporary.replace(target)  # an interrupted cache leaves no half-written pair behind
