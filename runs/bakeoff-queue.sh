@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The bake-off's queue (Accuracy V, begun 2026-11-28): trains the runs named in runs/bakeoff-queue.txt one after
 # the other, each by its own command.sh (which stops itself when its CPU budget is spent or its steps are done),
-# skipping those whose stdout.log says so ("budget spent", or fit's "finished: "), then judges each spent run once
+# skipping those whose stdout.log (or stdout.log.gz) says so ("budget spent", or fit's "finished: "), then judges each spent run once
 # (benchmarks/bakeoff_judge.sh, one thread, into benchmarks/results/2026-11-28-bakeoff/RUN), after the run's own
 # shipping check where it has one (runs/RUN/ship-check.sh, once: its exit status goes to runs/RUN/ship-check.exit,
 # its output to runs/RUN/ship-check.log). It re-reads the list
@@ -14,7 +14,9 @@ while true; do
   next="" waiting=0
   for run in $(grep -v '^#' runs/bakeoff-queue.txt); do
     while pgrep -f "fit --out runs/$run " > /dev/null; do sleep 60; done  # trained by another process
-    if grep -qE "budget spent|^finished: " "runs/$run/stdout.log" 2>/dev/null; then
+    # a finished run's stdout.log may be gzipped to keep the tree small: read either
+    if cat "runs/$run/stdout.log" 2>/dev/null | grep -qE "budget spent|^finished: " \
+      || zcat "runs/$run/stdout.log.gz" 2>/dev/null | grep -qE "budget spent|^finished: "; then
       if [ -x "runs/$run/ship-check.sh" ] && [ ! -f "runs/$run/ship-check.exit" ]; then
         echo "$(date -u +%FT%TZ) shipping check of $run"
         "runs/$run/ship-check.sh" >> "runs/$run/ship-check.log" 2>&1

@@ -21,13 +21,18 @@ from chooser_caches import near_far_agreement, near_far_caches
 from synthetic import render_pair
 
 
-def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: int = 4, separable: bool = False):
+WIDE = (1, 2, 4, 8, 16, 1)
+"""``--context-dilations 1,2,4,8,16,1``: 33 px of reach."""
+
+
+def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: int = 4, separable: bool = False,
+             dilations: tuple[int, ...] | None = None):
     """A small random ChooserCNN (or, with ``bias``, one whose logit is ``bias`` everywhere) and its file."""
     torch = pytest.importorskip("torch")
-    from cade_cli.train.chooser_net import ChooserCNN, export_net
+    from cade_cli.train.chooser_net import DILATIONS, ChooserCNN, export_net
 
     torch.manual_seed(seed)
-    net = ChooserCNN(len(PLANES), width, separable)
+    net = ChooserCNN(len(PLANES), width, separable, dilations or DILATIONS)
     if bias is not None:
         with torch.no_grad():
             net.out.weight.zero_()
@@ -35,11 +40,11 @@ def exported(folder: Path, *, seed: int = 0, bias: float | None = None, width: i
     return net, export_net(net, folder / "chooser.onnx")
 
 
-@pytest.mark.parametrize("separable", [False, True])
+@pytest.mark.parametrize(("separable", "dilations"), [(False, None), (True, None), (False, WIDE)])
 def test_the_file_gives_the_torch_networks_probability_and_strips_add_up_to_one_run(tmp_path: Path, monkeypatch,
-                                                                                     separable: bool):
+                                                                                     separable: bool, dilations):
     torch = pytest.importorskip("torch")
-    net, chooser = exported(tmp_path, separable=separable)
+    net, chooser = exported(tmp_path, separable=separable, dilations=dilations)
     planes = np.random.default_rng(1).normal(0, 1, (len(PLANES), 600, 40)).astype(np.float32)
     with torch.no_grad():
         expected = torch.sigmoid(net(torch.from_numpy(planes)[None]))[0, 0].numpy()
@@ -47,6 +52,19 @@ def test_the_file_gives_the_torch_networks_probability_and_strips_add_up_to_one_
     np.testing.assert_allclose(whole, expected, atol=1e-5)
     monkeypatch.setattr(chooser_net, "STRIP_PIXELS", 256 * 40)  # three strips of 256 rows
     np.testing.assert_allclose(chooser.probability(planes), whole, atol=1e-6)
+
+
+@pytest.mark.parametrize(("dilations", "reach"), [(None, 17), (WIDE, 33)])
+def test_a_pixel_sees_as_far_as_its_dilations_reach_and_no_farther(tmp_path: Path, dilations, reach: int):
+    _, chooser = exported(tmp_path, dilations=dilations, width=16)
+    planes = np.random.default_rng(2).normal(0, 1, (len(PLANES), 9, 101)).astype(np.float32)
+    base = chooser.probability(planes)[4, 50]
+    changed = []
+    for offset in (reach, reach + 1):  # a whole column that far to the right changed
+        moved = planes.copy()
+        moved[:, :, 50 + offset] += 5.0
+        changed.append(bool(chooser.probability(moved)[4, 50] != base))
+    assert changed == [True, False]
 
 
 def test_a_card_names_the_kind_and_a_damaged_file_or_unknown_kind_is_one_clear_error(tmp_path: Path):

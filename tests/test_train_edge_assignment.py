@@ -3,6 +3,8 @@ run end to end on pairs it builds itself."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -75,3 +77,23 @@ def test_the_probe_runs_end_to_end_on_cached_pairs(tmp_path, capsys):
         return float(rows[row].split("|")[-2])
 
     assert edge_bmp3("oracle") < edge_bmp3("filtered map")
+
+
+TEXTURES = Path(__file__).resolve().parents[2] / "shared" / "data" / "textures"
+
+
+@pytest.mark.skipif(not TEXTURES.is_dir(), reason="needs ../shared/data/textures")
+def test_rendered_pairs_are_cached_as_a_real_pair_is_and_kept(tmp_path):
+    files = probe.cache_rendered(tmp_path, model="cade-v13", count=1, seed=3, textures=TEXTURES)
+    pair = np.load(files[0])
+    assert set(pair.files) == {"left", "right", "disparity", "gt", "nonocc"}
+    assert pair["left"].shape == pair["right"].shape == pair["disparity"].shape == pair["gt"].shape
+    known = np.isfinite(pair["gt"])
+    assert known.mean() > 0.99 and pair["gt"][known].max() > 1.0
+    # the map is the model's, not the truth: close to it on most pixels, yet not equal
+    error = np.abs(pair["disparity"] - pair["gt"])[known]
+    assert 0.0 < np.mean(error > 3.0) < 0.6
+    stamp = files[0].stat().st_mtime_ns
+    assert probe.cache_rendered(tmp_path, model="cade-v13", count=1, seed=3, textures=TEXTURES) == files
+    assert files[0].stat().st_mtime_ns == stamp  # an existing pair is kept, not rendered again
+    assert probe.pair(files[0])["edge"].any()

@@ -30,9 +30,9 @@ KIND = "network"
 """A card's ``chooser.kind`` for this chooser (the perceptron's cards have none)."""
 STRIP_PIXELS = 1_000_000
 """Largest strip (pixels) given to the network at once: its activations are 24 float32 planes of it."""
-STRIP_OVERLAP = 64
-"""Rows shared by neighbouring strips, twice the network's reach, so that every kept row sees all it would see in
-one run."""
+STRIP_OVERLAP = 96
+"""Rows shared by neighbouring strips: each kept row sees half of them on its strip's side, at least the network's
+reach (17 px, or 33 px with ``--context-dilations 1,2,4,8,16,1``), so that it sees all it would see in one run."""
 
 
 def chooser_planes(left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,

@@ -8,12 +8,42 @@ from typing import Annotated
 
 import typer
 
+DEFAULT_DILATIONS = "1,2,4,8,1"
+"""``--context-dilations``' default: :data:`cade_cli.train.chooser_net.DILATIONS` (17 px of reach)."""
 
-def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, steps: int, seed: int):
+
+def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, dilations: tuple[int, ...],
+                 steps: int, seed: int):
     """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx``."""
     from cade_cli.train.chooser_net import export_net, fit_net
 
-    return export_net(fit_net(train, width=width, separable=separable, steps=steps, seed=seed), onnx)
+    return export_net(fit_net(train, width=width, separable=separable, dilations=dilations, steps=steps, seed=seed),
+                      onnx)
+
+
+def _check_options(*, candidates, context, edge_weight, edge_features, synthetic, textures) -> None:
+    """A usage error for options that do not go together (or a refinement that searches nothing)."""
+    from cade_cli.model_card import RUNTIME_REFINEMENTS
+
+    searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
+    if candidates is not None and candidates not in searched:
+        raise typer.BadParameter(f"must be one of {', '.join(searched)}", param_hint="--candidates")
+    if context and (edge_weight or edge_features):
+        raise typer.BadParameter("the convolutional chooser takes neither --edge-weight nor --edge-features",
+                                 param_hint="--context")
+    if synthetic and textures is None:
+        raise typer.BadParameter("rendering pairs needs --textures", param_hint="--synthetic")
+
+
+def _dilations(text: str) -> tuple[int, ...]:
+    """``--context-dilations``' value as a tuple; a usage error unless it is positive integers, comma-separated."""
+    try:
+        dilations = tuple(int(value) for value in text.split(","))
+    except ValueError:
+        dilations = ()
+    if not dilations or min(dilations) < 1:
+        raise typer.BadParameter("must be positive integers, comma-separated", param_hint="--context-dilations")
+    return dilations
 
 
 def _score_reporting_sets(chosen, data_dir: Path, datasets: list[str], cache: Path, suffix: str, model: str,
@@ -37,7 +67,8 @@ def _training_caches(real_dir: Path, folder: Path, scenes: str | None, model: st
 
 
 def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidates, edge_weight, edge_features,
-                context, context_width, context_separable, synthetic, textures, real_scenes, refinement) -> dict:
+                context, context_width, context_separable, context_dilations, synthetic, textures, real_scenes,
+                refinement) -> dict:
     """A card's record of where and how its chooser was fitted: the command's options as given."""
     command = (f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
                + (f"--scenes {scenes} " if scenes else "")
@@ -47,6 +78,8 @@ def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidat
                + (" --edge-features" if edge_features else "")
                + (f" --context --context-width {context_width}" if context else "")
                + (" --context-separable" if context and context_separable else "")
+               + (f" --context-dilations {context_dilations}" if context and context_dilations != DEFAULT_DILATIONS
+                  else "")
                + (f" --synthetic {synthetic} --textures {textures}" if synthetic else ""))
     fitted_on = (f"train-real ({real_scenes} scenes x 6 cross-band and 3 same-band tasks"
                  + (f": {scenes})" if scenes else ")") + (f" and {synthetic} rendered pairs" if synthetic else ""))
@@ -98,6 +131,8 @@ def chooser(
     context_width: Annotated[int, typer.Option(min=1, help="--context: channels of its layers.")] = 24,
     context_separable: Annotated[bool, typer.Option(help="--context: depthwise-separable layers (about half the "
                                                     "run time at 24 channels).")] = False,
+    context_dilations: Annotated[str, typer.Option(help="--context: its residual layers' dilations, comma-separated "
+                                                   "(each adds its dilation to the reach).")] = DEFAULT_DILATIONS,
     synthetic: Annotated[int, typer.Option(min=0, help="Also fit on this many freshly rendered pairs, which the "
                                            "network never saw (the training campaign's scene generator; needs "
                                            "--textures; cached in --cache; cade_cli.train.chooser_synthetic).")] = 0,
@@ -108,17 +143,12 @@ def chooser(
     """Fit the learned chooser between the network's disparity and the rank-SGBM match, on
     the six cross-band and three same-band tasks of every train-real scene; print its
     EPE / BMP3 (all pixels, as the pipeline finishes them) beside the fixed 32 px rule's."""
-    from cade_cli.model_card import RUNTIME_REFINEMENTS, card_path, read_card
+    from cade_cli.model_card import card_path, read_card
     from cade_cli.train.chooser import fit, report, score
 
-    searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
-    if candidates is not None and candidates not in searched:
-        raise typer.BadParameter(f"must be one of {', '.join(searched)}", param_hint="--candidates")
-    if context and (edge_weight or edge_features):
-        raise typer.BadParameter("the convolutional chooser takes neither --edge-weight nor --edge-features",
-                                 param_hint="--context")
-    if synthetic and textures is None:
-        raise typer.BadParameter("rendering pairs needs --textures", param_hint="--synthetic")
+    _check_options(candidates=candidates, context=context, edge_weight=edge_weight, edge_features=edge_features,
+                   synthetic=synthetic, textures=textures)
+    dilations = _dilations(context_dilations)
     fitted_refinement = candidates or read_card(model).refinement
     # one cache folder per refinement: a scene's npz is reused as it is
     suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
@@ -130,7 +160,8 @@ def chooser(
                                  textures=textures, real_dir=real_dir, candidates=fitted_refinement)
     if context:
         onnx = card_path(model).with_name(f"{card_path(model).stem}-chooser.onnx") if write_card else cache / "chooser.onnx"
-        chosen = _fit_network(train, onnx, width=context_width, separable=context_separable, steps=steps, seed=seed)
+        chosen = _fit_network(train, onnx, width=context_width, separable=context_separable, dilations=dilations,
+                              steps=steps, seed=seed)
     else:
         chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight,
                      edge_features=edge_features)
@@ -141,5 +172,6 @@ def chooser(
         _write_card(model, {**chosen.to_dict(), **_provenance(
             real_dir=real_dir, cache=cache, scenes=scenes, model=model, hidden=hidden, steps=steps, seed=seed,
             candidates=candidates, edge_weight=edge_weight, edge_features=edge_features, context=context,
-            context_width=context_width, context_separable=context_separable, synthetic=synthetic,
+            context_width=context_width, context_separable=context_separable, context_dilations=context_dilations,
+            synthetic=synthetic,
             textures=textures, real_scenes=len(train) - synthetic, refinement=fitted_refinement)})

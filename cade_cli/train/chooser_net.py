@@ -31,9 +31,10 @@ class ChooserCNN(nn.Module):
     better one): a 3 x 3 convolution to ``width`` channels, residual dilated 3 x 3 layers (:data:`DILATIONS`), a
     1 x 1 convolution to the logit. Zero padding: an image's border reads as no feature, in training as at run time.
     ``separable``: each residual layer a depthwise dilated 3 x 3 then a 1 x 1 across channels (the same reach, about
-    half the run time at 24 channels)."""
+    half the run time at 24 channels). ``dilations``: the residual layers' (each adds its dilation to the reach)."""
 
-    def __init__(self, planes: int = len(PLANES), width: int = 24, separable: bool = False):
+    def __init__(self, planes: int = len(PLANES), width: int = 24, separable: bool = False,
+                 dilations: tuple[int, ...] = DILATIONS):
         super().__init__()
         self.entry = nn.Sequential(nn.Conv2d(planes, width, 3, padding=1), nn.ReLU())
 
@@ -43,7 +44,7 @@ class ChooserCNN(nn.Module):
                                      nn.Conv2d(width, width, 1), nn.ReLU())
             return nn.Sequential(nn.Conv2d(width, width, 3, padding=dilation, dilation=dilation), nn.ReLU())
 
-        self.body = nn.ModuleList(layer(d) for d in DILATIONS)
+        self.body = nn.ModuleList(layer(d) for d in dilations)
         self.out = nn.Conv2d(width, 1, 1)
 
     def forward(self, planes: torch.Tensor) -> torch.Tensor:
@@ -73,18 +74,19 @@ def examples(caches: list[Path], tasks: tuple[str, ...] | None = None
     return found
 
 
-def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, steps: int = 3000, seed: int = 0,
-            crop: int = 96, batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None,
+def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, dilations: tuple[int, ...] = DILATIONS,
+            steps: int = 3000, seed: int = 0, crop: int = 96, batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None,
             log=print) -> ChooserCNN:
     """The network fitted on random ``crop`` x ``crop`` windows of the tasks of ``caches`` (``batch`` a step, Adam
     with a cosine from ``lr``): the weighted binary cross-entropy of its logit at the asked pixels (:func:`targets`).
-    Deterministic given ``seed`` and torch's thread count. ``width``, ``separable``: :class:`ChooserCNN`'s."""
+    Deterministic given ``seed`` and torch's thread count. ``width``, ``separable``, ``dilations``:
+    :class:`ChooserCNN`'s."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
     data = examples(caches, tasks)
     if not data:
         raise ValueError("no cached task to fit on")
-    net = ChooserCNN(len(PLANES), width, separable)
+    net = ChooserCNN(len(PLANES), width, separable, dilations)
     optimizer = torch.optim.Adam(net.parameters(), lr=lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
     for step in range(steps):

@@ -51,33 +51,45 @@ def rendered_bands(rng: np.random.Generator, pool, real, size: tuple[int, int] =
     return left, right, scene.disparity.astype(np.float32), names
 
 
-def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: Path, real_dir: Path | None = None,
-                    candidates: str | None = None, size: tuple[int, int] = SIZE,
-                    levels: int = LEVELS) -> list[Path]:
-    """``count`` npz files in ``out`` (each kept when it exists: pair ``i`` is drawn from its own stream of
-    (``seed``, ``i``), so a cache grows or resumes without changing its other pairs), each one rendered pair's
-    truth and the candidates of ``model``'s network and its card's refinement (or the one ``candidates`` names),
-    under the task name :data:`PREFIX` (with its right band, ``synthetic_right``, beside the
-    arrays); returns the files. ``size``: (height, width) of the pairs; ``levels``: their
-    disparities lie below this (:data:`LEVELS`)."""
+def cache_rendered(out: Path, stem: str, store, *, count: int, seed: int, textures: Path, real_dir: Path | None = None,
+                   size: tuple[int, int] = SIZE, levels: int = LEVELS) -> list[Path]:
+    """``count`` npz files ``out/STEM-SEED-IIII.npz``, each one rendered pair (:func:`rendered_bands`) stored as
+    ``store(left, right, truth, span)`` returns it (a dict of arrays; ``span``: the px searched, the truth's largest
+    disparity times :data:`MARGIN` and 4 px more). Pair ``i`` comes from its own stream (``seed``, ``i``), so a cache
+    grows or resumes without changing its other pairs; existing files are kept, and an interrupted cache leaves no
+    half-written pair behind. Returns the files."""
     from cade_cli.train.real import RealScenes
     from cade_cli.train.textures import TexturePool
 
     out.mkdir(parents=True, exist_ok=True)
     pool = TexturePool([textures])
     real = RealScenes(real_dir) if real_dir is not None else None
-    network, refinement = candidate_stages(model, candidates)
     files = []
     for index in range(count):
-        target = out / f"{PREFIX}-{seed}-{index:04d}.npz"
+        target = out / f"{stem}-{seed}-{index:04d}.npz"
         files.append(target)
         if target.exists():
             continue
         left, right, gt, names = rendered_bands(np.random.default_rng([seed, index]), pool, real, size, levels)
         span = int(np.ceil(np.nanmax(gt) * MARGIN)) + 4
-        stored = {"gt": gt, **task_candidates(network, refinement, left, right, span, PREFIX), f"{PREFIX}_right": right}
         temporary = target.with_suffix(".partial.npz")
-        np.savez_compressed(temporary, **stored)
-        temporary.replace(target)  # an interrupted cache leaves no half-written pair behind
+        np.savez_compressed(temporary, **store(left, right, gt, span))
+        temporary.replace(target)
         print(f"cached rendered pair {index} ({names[0]} against {names[1]}, up to {span} px)", flush=True)
     return files
+
+
+def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: Path, real_dir: Path | None = None,
+                    candidates: str | None = None, size: tuple[int, int] = SIZE,
+                    levels: int = LEVELS) -> list[Path]:
+    """``count`` npz files in ``out`` (:func:`cache_rendered`), each one rendered pair's truth and the candidates of
+    ``model``'s network and its card's refinement (or the one ``candidates`` names), under the task name
+    :data:`PREFIX` (with its right band, ``synthetic_right``, beside the arrays); returns the files. ``size``:
+    (height, width) of the pairs; ``levels``: their disparities lie below this (:data:`LEVELS`)."""
+    network, refinement = candidate_stages(model, candidates)
+
+    def store(left, right, gt, span):
+        return {"gt": gt, **task_candidates(network, refinement, left, right, span, PREFIX), f"{PREFIX}_right": right}
+
+    return cache_rendered(out, PREFIX, store, count=count, seed=seed, textures=textures, real_dir=real_dir, size=size,
+                          levels=levels)

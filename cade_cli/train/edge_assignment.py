@@ -175,15 +175,47 @@ def evaluate(model: AssignmentHead, name: str, pairs: list[dict]) -> dict[str, n
     return table.print()
 
 
+def cache_rendered(out: Path, *, model: str, count: int, seed: int, textures: Path,
+                   real_dir: Path | None = None) -> list[Path]:
+    """``count`` rendered pairs (:func:`~cade_cli.train.chooser_synthetic.cache_rendered`: the training campaign's
+    scenes, two of the eleven bands) in ``out`` as ``benchmarks/edge_headroom.py --cache`` stores a real pair:
+    the bands, ``model``'s filled map (a card without the edge filter), the truth, no non-occluded mask. Pair ``i``
+    comes from its own stream (``seed``, ``i``); existing files are kept."""
+    from cade_cli.matching import densify, get_matcher
+    from cade_cli.train import chooser_synthetic
+
+    matcher = get_matcher("cade", model=model)
+
+    def store(left, right, gt, span):
+        result = matcher(left, right, max_disp=span, min_disp=0, preprocess="cade")
+        return {"left": left, "right": right, "disparity": densify(result.disparity, result.valid), "gt": gt,
+                "nonocc": np.zeros(0, bool)}
+
+    return chooser_synthetic.cache_rendered(out, "rendered", store, count=count, seed=seed, textures=textures,
+                                            real_dir=real_dir)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--train", type=Path, required=True, help="folder of cached training pairs (.npz)")
     parser.add_argument("--evaluate", action="append", default=[], metavar="NAME=DIR")
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rendered", type=int, default=0, metavar="N",
+                        help="also fit on N rendered pairs (cached in --rendered-cache, made with --model)")
+    parser.add_argument("--rendered-cache", type=Path)
+    parser.add_argument("--textures", type=Path, default=Path("../shared/data/textures"))
+    parser.add_argument("--real-dir", type=Path, default=Path("../shared/data/train-real"))
+    parser.add_argument("--model", default="cade-v13-accurate", help="the card whose maps the caches hold")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
-    train = [pair(p) for p in sorted(args.train.glob("*.npz"))]
+    files = sorted(args.train.glob("*.npz"))
+    if args.rendered:
+        if args.rendered_cache is None:
+            parser.error("--rendered needs --rendered-cache")
+        files += cache_rendered(args.rendered_cache, model=args.model, count=args.rendered, seed=1000 + args.seed,
+                                textures=args.textures, real_dir=args.real_dir)
+    train = [pair(p) for p in files]
     if not train:
         parser.error(f"no .npz pairs in {args.train}")
     model = AssignmentHead()
