@@ -97,3 +97,9 @@ def test_rendered_pairs_are_cached_as_a_real_pair_is_and_kept(tmp_path):
     assert probe.cache_rendered(tmp_path, model="cade-v13", count=1, seed=3, textures=TEXTURES) == files
     assert files[0].stat().st_mtime_ns == stamp  # an existing pair is kept, not rendered again
     assert probe.pair(files[0])["edge"].any()
+
+
+def test_a_card_that_filters_its_map_is_refused_for_rendered_pairs(tmp_path):
+    with pytest.raises(ValueError, match="already filters its map"):
+        probe.cache_rendered(tmp_path, model="cade-v13-accurate-synthetic", count=1, seed=3, textures=TEXTURES)
+    assert not any(tmp_path.iterdir())  # refused before anything is rendered or written

@@ -8,17 +8,15 @@ from typing import Annotated
 
 import typer
 
-DEFAULT_DILATIONS = "1,2,4,8,1"
-"""``--context-dilations``' default: :data:`cade_cli.train.chooser_net.DILATIONS` (17 px of reach)."""
 
-
-def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, dilations: tuple[int, ...],
+def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, dilations: tuple[int, ...] | None,
                  steps: int, seed: int):
-    """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx``."""
-    from cade_cli.train.chooser_net import export_net, fit_net
+    """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx`` (``dilations`` None: its
+    default, :data:`cade_cli.train.chooser_net.DILATIONS`)."""
+    from cade_cli.train.chooser_net import DILATIONS, export_net, fit_net
 
-    return export_net(fit_net(train, width=width, separable=separable, dilations=dilations, steps=steps, seed=seed),
-                      onnx)
+    return export_net(fit_net(train, width=width, separable=separable, dilations=dilations or DILATIONS, steps=steps,
+                              seed=seed), onnx)
 
 
 def _check_options(*, candidates, context, edge_weight, edge_features, synthetic, textures) -> None:
@@ -35,8 +33,11 @@ def _check_options(*, candidates, context, edge_weight, edge_features, synthetic
         raise typer.BadParameter("rendering pairs needs --textures", param_hint="--synthetic")
 
 
-def _dilations(text: str) -> tuple[int, ...]:
-    """``--context-dilations``' value as a tuple; a usage error unless it is positive integers, comma-separated."""
+def _dilations(text: str | None) -> tuple[int, ...] | None:
+    """``--context-dilations``' value as a tuple (None where not given); a usage error unless it is positive
+    integers, comma-separated."""
+    if text is None:
+        return None
     try:
         dilations = tuple(int(value) for value in text.split(","))
     except ValueError:
@@ -78,8 +79,7 @@ def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidat
                + (" --edge-features" if edge_features else "")
                + (f" --context --context-width {context_width}" if context else "")
                + (" --context-separable" if context and context_separable else "")
-               + (f" --context-dilations {context_dilations}" if context and context_dilations != DEFAULT_DILATIONS
-                  else "")
+               + (f" --context-dilations {context_dilations}" if context and context_dilations else "")
                + (f" --synthetic {synthetic} --textures {textures}" if synthetic else ""))
     fitted_on = (f"train-real ({real_scenes} scenes x 6 cross-band and 3 same-band tasks"
                  + (f": {scenes})" if scenes else ")") + (f" and {synthetic} rendered pairs" if synthetic else ""))
@@ -131,8 +131,10 @@ def chooser(
     context_width: Annotated[int, typer.Option(min=1, help="--context: channels of its layers.")] = 24,
     context_separable: Annotated[bool, typer.Option(help="--context: depthwise-separable layers (about half the "
                                                     "run time at 24 channels).")] = False,
-    context_dilations: Annotated[str, typer.Option(help="--context: its residual layers' dilations, comma-separated "
-                                                   "(each adds its dilation to the reach).")] = DEFAULT_DILATIONS,
+    context_dilations: Annotated[str | None, typer.Option(help="--context: its residual layers' dilations, "
+                                                          "comma-separated (each adds its dilation to the reach; "
+                                                          "default cade_cli.train.chooser_net.DILATIONS, 17 px).")]
+    = None,
     synthetic: Annotated[int, typer.Option(min=0, help="Also fit on this many freshly rendered pairs, which the "
                                            "network never saw (the training campaign's scene generator; needs "
                                            "--textures; cached in --cache; cade_cli.train.chooser_synthetic).")] = 0,
@@ -152,7 +154,8 @@ def chooser(
     fitted_refinement = candidates or read_card(model).refinement
     # one cache folder per refinement: a scene's npz is reused as it is
     suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
-    train = _training_caches(real_dir, cache / f"train-real{suffix}", scenes, model, fitted_refinement)
+    train_real = _training_caches(real_dir, cache / f"train-real{suffix}", scenes, model, fitted_refinement)
+    train = list(train_real)
     if synthetic:
         from cade_cli.train.chooser_synthetic import cache_synthetic
 
@@ -165,7 +168,7 @@ def chooser(
     else:
         chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight,
                      edge_features=edge_features)
-    print(f"train-real CS: {report(score(train[:len(train) - synthetic], chosen))}")
+    print(f"train-real CS: {report(score(train_real, chosen))}")
     if data_dir is not None:
         _score_reporting_sets(chosen, data_dir, datasets.split(","), cache, suffix, model, fitted_refinement)
     if write_card:
@@ -173,5 +176,4 @@ def chooser(
             real_dir=real_dir, cache=cache, scenes=scenes, model=model, hidden=hidden, steps=steps, seed=seed,
             candidates=candidates, edge_weight=edge_weight, edge_features=edge_features, context=context,
             context_width=context_width, context_separable=context_separable, context_dilations=context_dilations,
-            synthetic=synthetic,
-            textures=textures, real_scenes=len(train) - synthetic, refinement=fitted_refinement)})
+            synthetic=synthetic, textures=textures, real_scenes=len(train_real), refinement=fitted_refinement)})

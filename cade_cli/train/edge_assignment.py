@@ -42,6 +42,9 @@ JUMP = 2.0
 MARGINS = (0.0, 0.3, 0.6)
 CROP = 96
 BATCH = 8
+RENDERED_SEED = 1000
+"""``--rendered``'s pairs come from the streams (this + ``--seed``, i): apart from the chooser's rendered pairs
+(``chooser --synthetic``, seed 0)."""
 
 
 def pair(path: Path) -> dict[str, np.ndarray]:
@@ -182,8 +185,11 @@ def cache_rendered(out: Path, *, model: str, count: int, seed: int, textures: Pa
     the bands, ``model``'s filled map (a card without the edge filter), the truth, no non-occluded mask. Pair ``i``
     comes from its own stream (``seed``, ``i``); existing files are kept."""
     from cade_cli.matching import densify, get_matcher
+    from cade_cli.model_card import read_card
     from cade_cli.train import chooser_synthetic
 
+    if read_card(model).edge_filter != "none":  # pair() filters the map: it must come unfiltered, as a real pair's
+        raise ValueError(f"{model} already filters its map; give the card without the filter")
     matcher = get_matcher("cade", model=model)
 
     def store(left, right, gt, span):
@@ -213,8 +219,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.rendered:
         if args.rendered_cache is None:
             parser.error("--rendered needs --rendered-cache")
-        files += cache_rendered(args.rendered_cache, model=args.model, count=args.rendered, seed=1000 + args.seed,
-                                textures=args.textures, real_dir=args.real_dir)
+        try:
+            files += cache_rendered(args.rendered_cache, model=args.model, count=args.rendered,
+                                    seed=RENDERED_SEED + args.seed, textures=args.textures, real_dir=args.real_dir)
+        except ValueError as error:
+            parser.error(str(error))
     train = [pair(p) for p in files]
     if not train:
         parser.error(f"no .npz pairs in {args.train}")
