@@ -191,3 +191,35 @@ def test_the_edge_weight_weighs_only_the_pixels_near_a_depth_jump(tmp_path: Path
     assert set(np.round(ratio, 5)) == {1.0, 5.0}
     assert 0 < (ratio == 5.0).mean() < 8 / 60  # within the band of columns 26..33 (8 of 60; the pixels the
     # network hides from the right view, left of the jump, are not sampled)
+
+
+def test_a_real_scenes_cache_written_before_the_right_bands_gets_each_tasks_right_band(tmp_path: Path):
+    """cache_candidates' scenes cached without their right bands (as before 2026-12-07) get each task's, as the
+    task's bands are made (no network run: the other arrays as they were); a complete cache is not rewritten."""
+    from types import SimpleNamespace
+
+    from cade_cli.evaluation.protocols import get_protocol
+    from cade_cli.train.chooser import add_right_bands, save_atomically, tasks_of
+
+    rng = np.random.default_rng(8)
+    scene = SimpleNamespace(left=rng.integers(0, 255, (20, 30, 3)).astype(np.uint8),
+                            right=rng.integers(0, 255, (20, 30, 3)).astype(np.uint8))
+    tasks = get_protocol("cs").tasks[:2]
+    keys = [task.name.replace(">", "") for task in tasks]
+    arrays = {"gt": rng.random((20, 30)).astype(np.float32)}
+    for task, key in zip(tasks, keys):
+        arrays.update({f"{key}_{name}": rng.random((20, 30)).astype(np.float32)
+                       for name in ("network", "uncertainty", "candidate")})
+        arrays.update({f"{key}_accepted": np.ones((20, 30), bool),
+                       f"{key}_left": task.bands(scene.left, scene.right)[0]})
+    target = tmp_path / "scene.npz"
+    save_atomically(target, arrays)
+    add_right_bands(target, scene)
+    for (_, task), spec in zip(tasks_of(target), sorted(tasks, key=lambda t: t.name.replace(">", ""))):
+        np.testing.assert_array_equal(task["right"], spec.bands(scene.left, scene.right)[1])
+    with np.load(target) as stored:
+        for key, value in arrays.items():
+            np.testing.assert_array_equal(stored[key], value)
+    written = target.stat().st_mtime_ns
+    add_right_bands(target, scene)
+    assert target.stat().st_mtime_ns == written

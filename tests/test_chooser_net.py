@@ -11,7 +11,8 @@ from cade_cli.errors import CadeError
 from cade_cli.matching import chooser_net
 from cade_cli.matching.base import DisparityRange
 from cade_cli.matching.chooser import AGREE, Chooser
-from cade_cli.matching.chooser_net import PLANES, ChooserNet, chooser_planes, load_chooser
+from cade_cli.matching.chooser_net import MATCH_PLANES, PLANES, ChooserNet, chooser_planes, load_chooser, sampled_at
+from cade_cli.spectral import network_input
 from cade_cli.matching.learned import LearnedPipeline, card_refinement
 from cade_cli.matching.network import NetworkStage
 from cade_cli.matching.refinement import RankSgbmRefinement
@@ -113,3 +114,113 @@ def test_fitting_learns_which_candidate_to_trust(tmp_path: Path):
     rng = np.random.default_rng(5)
     net = fit_net(near_far_caches(tmp_path, rng), width=8, steps=400, crop=32, batch=4, lr=5e-3, log=lambda _: None)
     assert near_far_agreement(export_net(net, tmp_path / "fitted.onnx"), rng) > 0.9
+
+
+def textured_pair(rng: np.random.Generator, shape: tuple[int, int], disparity: int) -> tuple[np.ndarray, np.ndarray]:
+    """A smoothed-noise left band and its right view at one whole ``disparity`` (left(x) = right(x - disparity))."""
+    import cv2
+
+    left = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.0) * 255
+    right = np.zeros_like(left)
+    right[:, :shape[1] - disparity] = left[:, disparity:]
+    return left, right
+
+
+def test_the_matching_evidence_is_the_right_band_where_each_candidate_puts_the_match():
+    rng = np.random.default_rng(11)
+    left, right = textured_pair(rng, (40, 80), 7)
+    true, wrong = np.full((40, 80), 7.0, np.float32), np.full((40, 80), 12.0, np.float32)
+    planes = chooser_planes(left, true, np.ones_like(true), wrong, np.ones((40, 80), bool), right,
+                            PLANES + MATCH_PLANES)
+    assert planes.shape == (len(PLANES) + len(MATCH_PLANES), 40, 80)
+    band = 2 * network_input(left, "cade") - 1  # centred
+    at_true, at_wrong, match_true, match_wrong = planes[len(PLANES):, :, 12:-12]
+    np.testing.assert_allclose(at_true, band[:, 12:-12], atol=1e-5)
+    np.testing.assert_allclose(match_true, band[:, 12:-12] ** 2, atol=1e-4)
+    assert match_true.mean() > 0.2 > 0.05 > abs(match_wrong.mean())
+    assert np.corrcoef(at_wrong.ravel(), band[:, 12:-12].ravel())[0, 1] < 0.3
+    np.testing.assert_allclose(match_wrong, band[:, 12:-12] * at_wrong, atol=1e-5)
+    half = sampled_at(right, np.full((40, 80), 6.5, np.float32))  # between two columns: their mean
+    np.testing.assert_allclose(half[:, 10:-10], (right[:, 3:-17] + right[:, 4:-16]) / 2, rtol=1e-5, atol=1e-3)
+    assert not sampled_at(right, np.full((40, 80), np.nan, np.float32)).any()
+    with pytest.raises(ValueError, match="right band"):
+        chooser_planes(left, true, np.ones_like(true), wrong, np.ones((40, 80), bool), None, PLANES + MATCH_PLANES)
+
+
+def test_the_pipeline_gives_the_chooser_the_right_band_shifted_with_the_range(tmp_path: Path, monkeypatch):
+    """The refinement matches against the right band shifted by the range's minimum and hands the chooser maps
+    shifted alike: the evidence must be the right band where the match truly lies, whatever the minimum."""
+    torch = pytest.importorskip("torch")
+    from cade_cli.train.chooser_net import ChooserCNN, export_net
+
+    net = ChooserCNN(len(PLANES) + len(MATCH_PLANES), 4)
+    with torch.no_grad():
+        net.out.weight.zero_()
+        net.out.bias.fill_(-30.0)
+    chooser = export_net(net, tmp_path / "chooser.onnx", PLANES + MATCH_PLANES)
+    assert load_chooser(chooser.to_dict(), tmp_path).planes == PLANES + MATCH_PLANES
+    seen = []
+    monkeypatch.setattr(ChooserNet, "probability", lambda self, planes: (seen.append(planes), np.zeros(
+        planes.shape[1:], np.float32))[1])
+    path = card_copy(tmp_path, "matching-chooser", chooser=chooser.to_dict())
+    pair = render_pair(np.random.default_rng(4), (64, 160), background=(14.0, 0.0), foreground=(30.0, 0.0))
+    correlations = []
+    for minimum in (0, 9):
+        seen.clear()
+        stage = NetworkStage(model=str(path))
+        LearnedPipeline(network=stage)(pair.left, pair.right, DisparityRange(minimum, minimum + 31))
+        (planes,) = seen
+        band, at_network = planes[len(PLANES) - 1, :, 40:], planes[len(PLANES), :, 40:]
+        correlations.append(np.corrcoef(band.ravel(), at_network.ravel())[0, 1])
+    assert min(correlations) > 0.5
+
+
+def evidence_caches(folder: Path, rng: np.random.Generator, scenes: int = 3) -> list[Path]:
+    """Scenes where only the bands say which candidate is right: in each 8 x 8 block, at random, one of the network's
+    value and SGBM's match is the truth and the other lies 6 px off it (above in some scenes, below in others), so
+    that the two maps' differences, jumps and spreads are alike whichever is right."""
+    files = []
+    for index in range(scenes):
+        left, right = textured_pair(rng, (48, 96), 10)
+        gt = np.full((48, 96), 10.0, np.float32)
+        blocks = np.kron(rng.random((6, 12)) < 0.5, np.ones((8, 8))).astype(bool)
+        off = gt + rng.choice([-6.0, 6.0])
+        files.append(folder / f"scene{index}.npz")
+        np.savez(files[-1], gt=gt, RB_network=np.where(blocks, off, gt), RB_uncertainty=np.ones_like(gt),
+                 RB_candidate=np.where(blocks, gt, off), RB_accepted=np.ones(gt.shape, bool), RB_left=left,
+                 RB_right=right)
+    return files
+
+
+def test_fitting_learns_the_candidate_that_the_bands_match(tmp_path: Path):
+    """Where nothing but the bands tells the candidates apart, the chooser with the matching evidence learns to take
+    SGBM's match exactly where it is the truth; without it, it cannot (the same fit, the usual planes)."""
+    pytest.importorskip("torch")
+    from cade_cli.train.chooser import tasks_of
+    from cade_cli.train.chooser_net import MATCHING, export_net, fit_net
+
+    rng = np.random.default_rng(12)
+    (tmp_path / "held-out").mkdir()
+    train, (test,) = evidence_caches(tmp_path, rng), evidence_caches(tmp_path / "held-out", rng, scenes=1)
+    ((gt, task),) = list(tasks_of(test))
+    truth = task["candidate"] == gt
+    agreement = {}
+    for planes in (PLANES, MATCHING):
+        net = fit_net(train, width=8, steps=300, crop=32, batch=4, lr=5e-3, planes=planes, log=lambda _: None)
+        chooser = export_net(net, tmp_path / f"{len(planes)}.onnx", planes)
+        taken = chooser.take(task["left"], task["network"], task["uncertainty"], task["candidate"], task["accepted"],
+                             task["right"])
+        agreement[len(planes)] = float((taken == truth)[:, 16:].mean())
+    assert agreement[len(MATCHING)] > 0.9 > 0.7 > agreement[len(PLANES)]
+
+
+def test_the_matching_evidence_without_the_convolutional_chooser_is_refused_before_any_work(tmp_path: Path):
+    pytest.importorskip("torch")
+    from typer.testing import CliRunner
+
+    from cade_cli.train.__main__ import app
+
+    result = CliRunner().invoke(app, ["chooser", "--real-dir", str(tmp_path), "--cache", str(tmp_path / "cache"),
+                                      "--model", "cade-v13", "--match-evidence"])
+    assert result.exit_code == 2 and "--context" in result.output
+    assert not (tmp_path / "cache").exists()

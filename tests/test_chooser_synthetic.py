@@ -72,3 +72,23 @@ def test_rendering_pairs_without_textures_is_refused_before_any_work(tmp_path: P
                                       "--model", "cade-v13", "--synthetic", "4"])
     assert result.exit_code == 2 and "--textures" in result.output
     assert not (tmp_path / "cache").exists()
+
+
+def test_a_cache_written_before_the_right_bands_gets_the_ones_its_pairs_render(tmp_path: Path):
+    """A pair cached without its right band (as before 2026-12-07) gets the one a fresh cache stores, the other
+    arrays as they were; a cached pair its stream no longer renders is one clear error, not a wrong band."""
+    from cade_cli.train.chooser import save_atomically
+
+    (fresh,) = cached(tmp_path / "fresh", 1, tmp_path)
+    (old,) = cached(tmp_path / "old", 1, tmp_path)
+    with np.load(old) as stored:
+        arrays = {key: stored[key] for key in stored.files if key != "synthetic_right"}
+    save_atomically(old, arrays)
+    cached(tmp_path / "old", 1, tmp_path)
+    completed, expected = np.load(old), np.load(fresh)
+    assert sorted(completed.files) == sorted(expected.files)
+    for name in completed.files:
+        np.testing.assert_array_equal(completed[name], expected[name])
+    save_atomically(old, {**arrays, "synthetic_left": arrays["synthetic_left"] + 1})
+    with pytest.raises(ValueError, match="remove the cache"):
+        cached(tmp_path / "old", 1, tmp_path)

@@ -120,3 +120,30 @@ def test_weights_only_exports_but_does_not_resume_and_the_command_says_the_sizes
     result = CliRunner().invoke(app, ["compact", str(checkpoint)])  # in place
     assert result.exit_code == 0 and "(compact)" in result.output
     assert torch.load(checkpoint, weights_only=False)["format"] == COMPACT
+
+
+def test_a_compiled_run_steps_the_compiled_network_on_the_runs_own_parameters(tmp_path, monkeypatch):
+    """``compile``: every training step goes through torch.compile's module, which shares the network's parameters,
+    so the checkpoint holds what those steps made (here a compile that changes no arithmetic: the weights are the
+    plain run's exactly); without it nothing is compiled."""
+    compiled = []
+
+    class Recorded(torch.nn.Module):
+        def __init__(self, net):
+            super().__init__()
+            self.net, self.calls = net, 0
+
+        def forward(self, *args):
+            self.calls += 1
+            return self.net(*args)
+
+    def record(net):
+        compiled.append(Recorded(net))
+        return compiled[-1]
+
+    monkeypatch.setattr(torch, "compile", record)
+    plain = torch.load(train(tiny_run(tmp_path / "plain")), weights_only=False)["model"]
+    assert compiled == []
+    through = torch.load(train(tiny_run(tmp_path / "compiled", compile=True)), weights_only=False)["model"]
+    assert len(compiled) == 1 and compiled[0].calls == 2
+    assert all(torch.equal(value, plain[key]) for key, value in through.items())

@@ -204,9 +204,10 @@ class Chooser:
         return min(rows, -(-rows // (2 * ROWS)) * ROWS)
 
     def take(self, left: np.ndarray, network: np.ndarray, uncertainty: np.ndarray, candidate: np.ndarray,
-             accepted: np.ndarray) -> np.ndarray:
+             accepted: np.ndarray, right: np.ndarray | None = None) -> np.ndarray:
         """(H, W) bool: where SGBM's accepted match replaces the network's value: where
-        the two agree, and at the :func:`disputed` pixels the chooser gives to SGBM."""
+        the two agree, and at the :func:`disputed` pixels the chooser gives to SGBM. ``right`` is not read (the
+        convolutional chooser's evidence may read it)."""
         taken = accepted.astype(bool).copy()
         asked = disputed(network, candidate, accepted)
         features = chooser_features(left, network, uncertainty, candidate, accepted, where=asked, names=self.features)

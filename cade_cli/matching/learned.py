@@ -77,7 +77,8 @@ class LearnedPipeline:
             weights = card.chooser  # the card's learned choice, else the 32 px rule
             chooser = load_chooser(weights, card.variants[0].path.parent) if weights is not None else None
             choose = None if chooser is None else (
-                lambda shifted_network, match, accepted: chooser.take(left, shifted_network, uncertainty, match, accepted))
+                lambda shifted_network, match, accepted, shifted_right: chooser.take(
+                    left, shifted_network, uncertainty, match, accepted, shifted_right))
             refinement = card_refinement(card, self.refinement)
             refined, taken = refinement.refine(left, right, network, disparity_range, choose=choose)
             disparity = np.clip(refined, disparity_range.minimum, disparity_range.maximum)

@@ -22,10 +22,10 @@ from cade_cli.matching.cost import rank_transform
 from cade_cli.matching.network import shift_right_view
 from cade_cli.matching.side_by_side import side_by_side
 
-Choice = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""``choose(network, match, accepted) -> taken``: which accepted matches replace the
+Choice = Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+"""``choose(network, match, accepted, right) -> taken``: which accepted matches replace the
 network's value, instead of the ``agreement`` rule (all (H, W); the disparities may be
-shifted by the range's minimum, so a chooser must depend on differences only)."""
+shifted by the range's minimum, and ``right``, the raw right band SGBM matched, with them)."""
 
 SIGN_BLUR = 31
 """Side of the box blur applied to both bands before their correlation decides whether
@@ -201,7 +201,7 @@ class RankSgbmRefinement:
         if choose is None:
             accepted &= np.abs(matched - disparity) <= self.agreement
         else:
-            accepted &= choose(disparity, matched, accepted)
+            accepted &= choose(disparity, matched, accepted, right)
         return np.where(accepted, matched, disparity).astype(np.float32), accepted
 
     def candidate(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,

@@ -75,6 +75,9 @@ def fit(
                                                "(a wider 3D part starts fresh; a CadeNet2D with more levels keeps the old "
                                                "disparities' weights, net2d.with_more_levels).")] = False,
     amp: Annotated[bool, typer.Option(help="Mixed precision (bf16 autocast; for --device cuda).")] = False,
+    compile_network: Annotated[bool, typer.Option("--compile", help="Train through torch.compile (a few minutes "
+                                                  "of compiling at each start, then faster steps; needs a C++ "
+                                                  "compiler).")] = False,
     training_mode: Annotated[str, typer.Option(help="cade (11 bands + the color agnostic transform; every shipped "
                                                "model), csdl (the 4 weighted-sum bands + noise, no transform) or "
                                                "pristine (the same R, G or B on both sides, no transform): the "
@@ -184,7 +187,7 @@ def fit(
                          workers=workers, validate_every=validate_every, stop_after=stop_after,
                          init=str(init) if init else None, warmup=warmup, padding=padding,
                          entry_kernel=entry_kernel, misaligned=misaligned,
-                         real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp,
+                         real_dir=str(real_dir) if real_dir else None, real_share=real_share, amp=amp, compile=compile_network,
                          real_hold_out=real_hold_out.split(",") if real_hold_out else [],
                          channels3d=channels3d, init_partial=init_partial, census=census, aggregation=aggregation,
                          second_scale=second_scale, training_mode=training_mode, time_budget_s=time_budget, cpu_budget_s=cpu_budget,

@@ -60,11 +60,11 @@ def candidate_stages(model: str, candidates: str | None = None) -> tuple[Network
 def task_candidates(network: NetworkStage, refinement: RankSgbmRefinement, left: np.ndarray, right: np.ndarray,
                     span: int, key: str) -> dict[str, np.ndarray]:
     """One task's cached arrays, named ``{key}_{name}``: the network's map and uncertainty over 0 .. ``span`` px,
-    SGBM's match and where SGBM accepted it, and the left band (what :func:`tasks_of` reads back)."""
+    SGBM's match and where SGBM accepted it, and both bands (what :func:`tasks_of` reads back)."""
     estimate = network.estimate(left, right, DisparityRange(0, span))
     candidate, accepted = refinement.candidate(left, right, estimate.disparity, span)
     return {f"{key}_network": estimate.disparity, f"{key}_uncertainty": estimate.uncertainty,
-            f"{key}_candidate": candidate, f"{key}_accepted": accepted, f"{key}_left": left}
+            f"{key}_candidate": candidate, f"{key}_accepted": accepted, f"{key}_left": left, f"{key}_right": right}
 
 
 def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
@@ -80,14 +80,42 @@ def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
         target = out / f"{scene.name.replace('/', '-')}.npz"
         files.append(target)
         if target.exists():
+            add_right_bands(target, scene)
             continue
         stored = {"gt": scene.disparity.astype(np.float32)}
-        for task in (task for protocol in PROTOCOLS for task in get_protocol(protocol).tasks):
+        for task in cached_tasks():
             left, right = task.bands(scene.left, scene.right)
             stored.update(task_candidates(network, refinement, left, right, scene.max_disp, task.name.replace(">", "")))
-        np.savez_compressed(target, **stored)
+        save_atomically(target, stored)
         print(f"cached {dataset} {scene.name}", flush=True)
     return files
+
+
+def cached_tasks():
+    """Every task of :data:`PROTOCOLS`, in the order the cache stores them."""
+    return (task for protocol in PROTOCOLS for task in get_protocol(protocol).tasks)
+
+
+def save_atomically(target: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``arrays`` as a compressed npz at ``target``, through a temporary file: never a half-written cache."""
+    temporary = target.with_suffix(".partial.npz")
+    np.savez_compressed(temporary, **arrays)
+    temporary.replace(target)
+
+
+def add_right_bands(target: Path, scene) -> None:
+    """Give a cache written before the right bands were stored (2026-12-07) each task's right band, from ``scene``
+    (what :func:`task_candidates` stores now; the other arrays as they were, no network run)."""
+    with np.load(target) as stored:
+        arrays = {key: stored[key] for key in stored.files}
+    keys = [task.name.replace(">", "") for task in cached_tasks()]
+    if all(f"{key}_right" in arrays for key in keys if f"{key}_left" in arrays):
+        return
+    for task, key in zip(cached_tasks(), keys):
+        if f"{key}_left" in arrays:
+            arrays[f"{key}_right"] = task.bands(scene.left, scene.right)[1]
+    save_atomically(target, arrays)
+    print(f"added the right bands to {target.name}", flush=True)
 
 
 def tasks_of(cache: Path, tasks: tuple[str, ...] | None = None):
@@ -98,7 +126,8 @@ def tasks_of(cache: Path, tasks: tuple[str, ...] | None = None):
     for prefix in prefixes:
         if tasks is not None and prefix not in tasks:
             continue
-        yield gt, {name: stored[f"{prefix}_{name}"] for name in ("network", "uncertainty", "candidate", "accepted", "left")}
+        names = ("network", "uncertainty", "candidate", "accepted", "left", "right")
+        yield gt, {name: stored[f"{prefix}_{name}"] for name in names if f"{prefix}_{name}" in stored.files}
 
 
 def features_of(task: dict, names: tuple[str, ...] = FEATURES) -> np.ndarray:
@@ -191,7 +220,7 @@ def score(caches: list[Path], chooser: Chooser | None, tasks: tuple[str, ...] | 
             maps = {"network": network,
                     "fixed": np.where(accepted & (np.abs(candidate - network) <= AGREEMENT), candidate, network)}
             if chooser is not None:
-                taken = chooser.take(task["left"], network, task["uncertainty"], candidate, accepted)
+                taken = chooser.take(task["left"], network, task["uncertainty"], candidate, accepted, task.get("right"))
                 maps["learned"] = np.where(taken, candidate, network)
             better = np.abs(candidate - gt) < np.abs(network - gt)
             maps["oracle"] = np.where(accepted & better, candidate, network)

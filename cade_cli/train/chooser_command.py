@@ -10,17 +10,21 @@ import typer
 
 
 def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, dilations: tuple[int, ...] | None,
-                 steps: int, seed: int):
+                 steps: int, seed: int, match_evidence: bool):
     """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx`` (``dilations`` None: its
-    default, :data:`cade_cli.train.chooser_net.DILATIONS`)."""
-    from cade_cli.train.chooser_net import DILATIONS, export_net, fit_net
+    default, :data:`cade_cli.train.chooser_net.DILATIONS`; ``match_evidence``: its planes are
+    :data:`cade_cli.train.chooser_net.MATCHING`)."""
+    from cade_cli.train.chooser_net import DILATIONS, MATCHING, PLANES, export_net, fit_net
 
+    planes = MATCHING if match_evidence else PLANES
     return export_net(fit_net(train, width=width, separable=separable, dilations=dilations or DILATIONS, steps=steps,
-                              seed=seed), onnx)
+                              seed=seed, planes=planes), onnx, planes)
 
 
-def _check_options(*, candidates, context, edge_weight, edge_features, synthetic, textures) -> None:
-    """A usage error for options that do not go together (or a refinement that searches nothing)."""
+def _check_options(candidates, context, edge_weight, edge_features, synthetic, textures, match_evidence,
+                   dilations: str | None) -> tuple[int, ...] | None:
+    """A usage error for options that do not go together (or a refinement that searches nothing); else
+    ``--context-dilations``' value (:func:`_dilations`)."""
     from cade_cli.model_card import RUNTIME_REFINEMENTS
 
     searched = tuple(name for name in RUNTIME_REFINEMENTS if name != "none")
@@ -29,8 +33,12 @@ def _check_options(*, candidates, context, edge_weight, edge_features, synthetic
     if context and (edge_weight or edge_features):
         raise typer.BadParameter("the convolutional chooser takes neither --edge-weight nor --edge-features",
                                  param_hint="--context")
+    if match_evidence and not context:
+        raise typer.BadParameter("the matching evidence is read by the convolutional chooser: add --context",
+                                 param_hint="--match-evidence")
     if synthetic and textures is None:
         raise typer.BadParameter("rendering pairs needs --textures", param_hint="--synthetic")
+    return _dilations(dilations)
 
 
 def _dilations(text: str | None) -> tuple[int, ...] | None:
@@ -68,8 +76,8 @@ def _training_caches(real_dir: Path, folder: Path, scenes: str | None, model: st
 
 
 def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidates, edge_weight, edge_features,
-                context, context_width, context_separable, context_dilations, synthetic, textures, real_scenes,
-                refinement) -> dict:
+                context, context_width, context_separable, context_dilations, match_evidence, synthetic, textures,
+                real_scenes, refinement) -> dict:
     """A card's record of where and how its chooser was fitted: the command's options as given."""
     command = (f"python -m cade_cli.train chooser --real-dir {real_dir} --cache {cache} "
                + (f"--scenes {scenes} " if scenes else "")
@@ -80,6 +88,7 @@ def _provenance(*, real_dir, cache, scenes, model, hidden, steps, seed, candidat
                + (f" --context --context-width {context_width}" if context else "")
                + (" --context-separable" if context and context_separable else "")
                + (f" --context-dilations {context_dilations}" if context and context_dilations else "")
+               + (" --match-evidence" if match_evidence else "")
                + (f" --synthetic {synthetic} --textures {textures}" if synthetic else ""))
     fitted_on = (f"train-real ({real_scenes} scenes x 6 cross-band and 3 same-band tasks"
                  + (f": {scenes})" if scenes else ")") + (f" and {synthetic} rendered pairs" if synthetic else ""))
@@ -135,6 +144,8 @@ def chooser(
                                                           "comma-separated (each adds its dilation to the reach; "
                                                           "default cade_cli.train.chooser_net.DILATIONS, 17 px).")]
     = None,
+    match_evidence: Annotated[bool, typer.Option(help="--context: also read the right band where each candidate puts "
+                                                 "the match, and that times the left band (their correlation).")] = False,
     synthetic: Annotated[int, typer.Option(min=0, help="Also fit on this many freshly rendered pairs, which the "
                                            "network never saw (the training campaign's scene generator; needs "
                                            "--textures; cached in --cache; cade_cli.train.chooser_synthetic).")] = 0,
@@ -148,9 +159,8 @@ def chooser(
     from cade_cli.model_card import card_path, read_card
     from cade_cli.train.chooser import fit, report, score
 
-    _check_options(candidates=candidates, context=context, edge_weight=edge_weight, edge_features=edge_features,
-                   synthetic=synthetic, textures=textures)
-    dilations = _dilations(context_dilations)
+    dilations = _check_options(candidates, context, edge_weight, edge_features, synthetic, textures, match_evidence,
+                               context_dilations)
     fitted_refinement = candidates or read_card(model).refinement
     # one cache folder per refinement: a scene's npz is reused as it is
     suffix = "" if fitted_refinement == "rank-sgbm" else f"-{fitted_refinement}"
@@ -164,7 +174,7 @@ def chooser(
     if context:
         onnx = card_path(model).with_name(f"{card_path(model).stem}-chooser.onnx") if write_card else cache / "chooser.onnx"
         chosen = _fit_network(train, onnx, width=context_width, separable=context_separable, dilations=dilations,
-                              steps=steps, seed=seed)
+                              steps=steps, seed=seed, match_evidence=match_evidence)
     else:
         chosen = fit(train, hidden=hidden, steps=steps, seed=seed, edge_weight=edge_weight,
                      edge_features=edge_features)
@@ -176,4 +186,5 @@ def chooser(
             real_dir=real_dir, cache=cache, scenes=scenes, model=model, hidden=hidden, steps=steps, seed=seed,
             candidates=candidates, edge_weight=edge_weight, edge_features=edge_features, context=context,
             context_width=context_width, context_separable=context_separable, context_dilations=context_dilations,
-            synthetic=synthetic, textures=textures, real_scenes=len(train_real), refinement=fitted_refinement)})
+            match_evidence=match_evidence, synthetic=synthetic, textures=textures, real_scenes=len(train_real),
+            refinement=fitted_refinement)})

@@ -18,11 +18,13 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from cade_cli.io.checksum import file_sha256
-from cade_cli.matching.chooser_net import PLANES, ChooserNet, chooser_planes
+from cade_cli.matching.chooser_net import MATCH_PLANES, PLANES, ChooserNet, chooser_planes
 from cade_cli.train.chooser import asked_pixels, choice_targets, tasks_of
 from cade_cli.train.export import write_onnx
 
 DILATIONS = (1, 2, 4, 8, 1)
+MATCHING = PLANES + MATCH_PLANES
+"""``chooser --match-evidence``'s planes."""
 """The residual 3 x 3 layers' dilations: together with the first layer, 17 px of reach on each side."""
 
 
@@ -61,32 +63,36 @@ def targets(gt: np.ndarray, task: dict) -> tuple[np.ndarray, np.ndarray]:
     return label, np.where(asked_pixels(gt, task), weight, 0).astype(np.float32)
 
 
-def examples(caches: list[Path], tasks: tuple[str, ...] | None = None
+def examples(caches: list[Path], tasks: tuple[str, ...] | None = None, planes: tuple[str, ...] = PLANES
              ) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
-    """(planes (P, H, W) float16, label, weight) of every task of ``caches`` (those named in ``tasks``)."""
+    """(planes (P, H, W) float16, label, weight) of every task of ``caches`` (those named in ``tasks``); ``planes``:
+    which (with :data:`~cade_cli.matching.chooser_net.MATCH_PLANES` the caches must hold the right bands:
+    :func:`cade_cli.train.chooser.cache_candidates` adds them to an older cache)."""
     found = []
     for cache in caches:
         for gt, task in tasks_of(cache, tasks):
-            planes = chooser_planes(task["left"], task["network"], task["uncertainty"], task["candidate"],
-                                    task["accepted"])
+            if planes != PLANES and "right" not in task:
+                raise ValueError(f"{cache} holds no right bands; cache_candidates adds them")
+            stack = chooser_planes(task["left"], task["network"], task["uncertainty"], task["candidate"],
+                                   task["accepted"], task.get("right"), planes)
             label, weight = targets(gt, task)
-            found.append((torch.from_numpy(planes).half(), torch.from_numpy(label), torch.from_numpy(weight)))
+            found.append((torch.from_numpy(stack).half(), torch.from_numpy(label), torch.from_numpy(weight)))
     return found
 
 
 def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, dilations: tuple[int, ...] = DILATIONS,
             steps: int = 3000, seed: int = 0, crop: int = 96, batch: int = 8, lr: float = 2e-3, tasks: tuple[str, ...] | None = None,
-            log=print) -> ChooserCNN:
+            planes: tuple[str, ...] = PLANES, log=print) -> ChooserCNN:
     """The network fitted on random ``crop`` x ``crop`` windows of the tasks of ``caches`` (``batch`` a step, Adam
     with a cosine from ``lr``): the weighted binary cross-entropy of its logit at the asked pixels (:func:`targets`).
     Deterministic given ``seed`` and torch's thread count. ``width``, ``separable``, ``dilations``:
-    :class:`ChooserCNN`'s."""
+    :class:`ChooserCNN`'s; ``planes``: its inputs (:func:`examples`)."""
     rng = np.random.default_rng(seed)
     torch.manual_seed(seed)
-    data = examples(caches, tasks)
+    data = examples(caches, tasks, planes)
     if not data:
         raise ValueError("no cached task to fit on")
-    net = ChooserCNN(len(PLANES), width, separable, dilations)
+    net = ChooserCNN(len(planes), width, separable, dilations)
     optimizer = torch.optim.Adam(net.parameters(), lr=lr)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
     for step in range(steps):
@@ -111,8 +117,9 @@ def fit_net(caches: list[Path], *, width: int = 24, separable: bool = False, dil
     return net.eval()
 
 
-def export_net(net: ChooserCNN, path: Path) -> ChooserNet:
-    """Write ``net`` as ONNX (input ``planes``, output ``logit``, height and width dynamic) to ``path`` (through a
-    temporary file: an interrupted export leaves no half-written model); the runtime chooser pinned to it."""
-    write_onnx(net.eval(), (torch.rand(1, len(PLANES), 64, 96),), path, ["planes"], ["logit"])
-    return ChooserNet(path, file_sha256(path))
+def export_net(net: ChooserCNN, path: Path, planes: tuple[str, ...] = PLANES) -> ChooserNet:
+    """Write ``net`` (fitted on ``planes``) as ONNX (input ``planes``, output ``logit``, height and width dynamic)
+    to ``path`` (through a temporary file: an interrupted export leaves no half-written model); the runtime chooser
+    pinned to it."""
+    write_onnx(net.eval(), (torch.rand(1, len(planes), 64, 96),), path, ["planes"], ["logit"])
+    return ChooserNet(path, file_sha256(path), planes=planes)

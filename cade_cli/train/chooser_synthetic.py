@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from cade_cli.spectral import BAND_NAMES
-from cade_cli.train.chooser import candidate_stages, task_candidates
+from cade_cli.train.chooser import candidate_stages, save_atomically, task_candidates
 
 SIZE = (384, 448)
 """(height, width) of a rendered pair: about a real training scene's size (~370 x 430)."""
@@ -84,12 +84,40 @@ def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: P
                     levels: int = LEVELS) -> list[Path]:
     """``count`` npz files in ``out`` (:func:`cache_rendered`), each one rendered pair's truth and the candidates of
     ``model``'s network and its card's refinement (or the one ``candidates`` names), under the task name
-    :data:`PREFIX` (with its right band, ``synthetic_right``, beside the arrays); returns the files. ``size``:
+    :data:`PREFIX` (its right band too, ``synthetic_right``, as every task's); returns the files. ``size``:
     (height, width) of the pairs; ``levels``: their disparities lie below this (:data:`LEVELS`)."""
     network, refinement = candidate_stages(model, candidates)
 
     def store(left, right, gt, span):
-        return {"gt": gt, **task_candidates(network, refinement, left, right, span, PREFIX), f"{PREFIX}_right": right}
+        return {"gt": gt, **task_candidates(network, refinement, left, right, span, PREFIX)}
 
-    return cache_rendered(out, PREFIX, store, count=count, seed=seed, textures=textures, real_dir=real_dir, size=size,
-                          levels=levels)
+    files = cache_rendered(out, PREFIX, store, count=count, seed=seed, textures=textures, real_dir=real_dir,
+                           size=size, levels=levels)
+    add_right_bands(files, seed=seed, textures=textures, real_dir=real_dir, size=size, levels=levels)
+    return files
+
+
+def add_right_bands(files: list[Path], *, seed: int, textures: Path, real_dir: Path | None = None,
+                    size: tuple[int, int] = SIZE, levels: int = LEVELS) -> None:
+    """Give the pairs of ``files`` cached before the right bands were stored (2026-12-07) their right band,
+    rendered again from the pair's own stream (the other arrays as they were, no network run).
+
+    Raises:
+        ValueError: a pair rendered again differs from the cached one (the generator changed since)."""
+    from cade_cli.train.real import RealScenes
+    from cade_cli.train.textures import TexturePool
+
+    lacking = [target for target in files if f"{PREFIX}_right" not in np.load(target).files]
+    if not lacking:
+        return
+    pool = TexturePool([textures])
+    real = RealScenes(real_dir) if real_dir is not None else None
+    for target in lacking:
+        index = int(target.stem.rsplit("-", 1)[1])
+        left, right, _, _ = rendered_bands(np.random.default_rng([seed, index]), pool, real, size, levels)
+        with np.load(target) as stored:
+            arrays = {key: stored[key] for key in stored.files}
+        if not np.array_equal(arrays[f"{PREFIX}_left"], left):
+            raise ValueError(f"{target} is not the pair its stream renders now; remove the cache to rebuild it")
+        save_atomically(target, {**arrays, f"{PREFIX}_right": right})
+        print(f"added the right band to {target.name}", flush=True)

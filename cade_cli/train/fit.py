@@ -142,6 +142,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
     net = network_of(asdict(config)).to(config.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=config.lr)
     start, elapsed_before, cpu_before = restore(net, optimizer, config, checkpoint_path if resume else None)
+    stepped = torch.compile(net) if config.compile else net  # the same parameters; validation runs ``net``
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     log, with_cpu = open_log(out / "log.csv", start)
     writer = csv.writer(log)
@@ -165,7 +166,7 @@ def train(config: TrainConfig, *, resume: bool = True) -> Path:
         for group in optimizer.param_groups:
             group["lr"] = rate
         done = step + 1
-        measured = optimise(net, optimizer, batch, config, device_type)
+        measured = optimise(stepped, optimizer, batch, config, device_type)
         if measured is not None:
             running_loss, running_epe, seen = running_loss + measured[0], running_epe + measured[1], seen + 1
         else:  # a batch without ground truth, or an overflow (bf16): one NaN step would poison the run

@@ -17,10 +17,14 @@
 #   nohup nice runs/campaign-2026-12-07-extended/command.sh >> runs/campaign-2026-12-07-extended/stdout.log 2>&1 &
 # resumes where it stopped (from last.pt; init.pt is read at step 0 only); a lent GPU continues it
 # (runs/gpu-campaign.sh, docs/gpu-recipe.md). DEVICE_FLAGS and RUN_DIR as in the first campaign's command.sh.
+# Since step 16,750 (2026-12-07, 21:00 UTC) the CPU trains it through torch.compile with one process rendering
+# the batches beside the step (--compile --workers 1): the same batches bit for bit, 0.54 s a step against 0.83
+# (runs/step-speed.sh; docs/research/network-design.md, "the campaign's steps faster"). Its log's CPU column counts
+# the training process only from then on.
 here=$(dirname "$0")
 run=${RUN_DIR:-$here}
 data=${DATA:-../shared/data}
-export DEVICE_FLAGS=${DEVICE_FLAGS:-"--device cpu --threads 2 --workers 0 --validate-every 1000 --validate-rgb --data-dir $data"}
+export DEVICE_FLAGS=${DEVICE_FLAGS:-"--device cpu --threads 2 --workers 1 --compile --validate-every 1000 --validate-rgb --data-dir $data"}
 exec "$here/../bakeoff.sh" "$run" --architecture cadenet-iterative \
   --features2d 24 --width2d 32 --floating 0.5 --init "$here/init.pt" --steps 40000 --lr 5e-4 --seed 53 \
   --asymmetric 0.3 --mask-evidence --init-partial "$@"
