@@ -36,7 +36,9 @@ MATCH_PLANES = ("right_at_network", "right_at_candidate", "match_at_network", "m
 centred (``2 x - 1``, in -1 .. 1, as the transform's ``x_s`` clipped), sampled where the network's value and SGBM's
 match put each pixel's match (0 outside the right view), then each times the left band's, centred alike: positive
 where the two bands' contrast agrees, negative where it is inverted, near 0 on average where they are unrelated."""
-PLANE_SETS = (PLANES, PLANES + MATCH_PLANES)
+MATCHING = PLANES + MATCH_PLANES
+"""A chooser's planes with the matching evidence (``chooser --match-evidence``)."""
+PLANE_SETS = (PLANES, MATCHING)
 """The input plane sets a network chooser may have (a card names its own)."""
 KIND = "network"
 """A card's ``chooser.kind`` for this chooser (the perceptron's cards have none)."""

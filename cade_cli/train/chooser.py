@@ -85,7 +85,7 @@ def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
         stored = {"gt": scene.disparity.astype(np.float32)}
         for task in cached_tasks():
             left, right = task.bands(scene.left, scene.right)
-            stored.update(task_candidates(network, refinement, left, right, scene.max_disp, task.name.replace(">", "")))
+            stored.update(task_candidates(network, refinement, left, right, scene.max_disp, key_of(task)))
         save_atomically(target, stored)
         print(f"cached {dataset} {scene.name}", flush=True)
     return files
@@ -94,6 +94,11 @@ def cache_candidates(dataset: str, data_dir: Path, out: Path, *, model: str,
 def cached_tasks():
     """Every task of :data:`PROTOCOLS`, in the order the cache stores them."""
     return (task for protocol in PROTOCOLS for task in get_protocol(protocol).tasks)
+
+
+def key_of(task) -> str:
+    """A task's name in a cache (its arrays' prefix): "R>G" -> "RG"."""
+    return task.name.replace(">", "")
 
 
 def save_atomically(target: Path, arrays: dict[str, np.ndarray]) -> None:
@@ -107,13 +112,13 @@ def add_right_bands(target: Path, scene) -> None:
     """Give a cache written before the right bands were stored (2026-12-07) each task's right band, from ``scene``
     (what :func:`task_candidates` stores now; the other arrays as they were, no network run)."""
     with np.load(target) as stored:
+        lacking = [task for task in cached_tasks() if f"{key_of(task)}_left" in stored.files
+                   and f"{key_of(task)}_right" not in stored.files]
+        if not lacking:  # read the arrays only where some must be added: a fit calls this for every cached scene
+            return
         arrays = {key: stored[key] for key in stored.files}
-    keys = [task.name.replace(">", "") for task in cached_tasks()]
-    if all(f"{key}_right" in arrays for key in keys if f"{key}_left" in arrays):
-        return
-    for task, key in zip(cached_tasks(), keys):
-        if f"{key}_left" in arrays:
-            arrays[f"{key}_right"] = task.bands(scene.left, scene.right)[1]
+    for task in lacking:
+        arrays[f"{key_of(task)}_right"] = task.bands(scene.left, scene.right)[1]
     save_atomically(target, arrays)
     print(f"added the right bands to {target.name}", flush=True)
 

@@ -13,8 +13,9 @@ def _fit_network(train: list[Path], onnx: Path, *, width: int, separable: bool, 
                  steps: int, seed: int, match_evidence: bool):
     """The convolutional chooser fitted on the caches ``train`` and exported to ``onnx`` (``dilations`` None: its
     default, :data:`cade_cli.train.chooser_net.DILATIONS`; ``match_evidence``: its planes are
-    :data:`cade_cli.train.chooser_net.MATCHING`)."""
-    from cade_cli.train.chooser_net import DILATIONS, MATCHING, PLANES, export_net, fit_net
+    :data:`cade_cli.matching.chooser_net.MATCHING`)."""
+    from cade_cli.matching.chooser_net import MATCHING, PLANES
+    from cade_cli.train.chooser_net import DILATIONS, export_net, fit_net
 
     planes = MATCHING if match_evidence else PLANES
     return export_net(fit_net(train, width=width, separable=separable, dilations=dilations or DILATIONS, steps=steps,

@@ -18,13 +18,11 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from cade_cli.io.checksum import file_sha256
-from cade_cli.matching.chooser_net import MATCH_PLANES, PLANES, ChooserNet, chooser_planes
+from cade_cli.matching.chooser_net import MATCHING, PLANES, ChooserNet, chooser_planes
 from cade_cli.train.chooser import asked_pixels, choice_targets, tasks_of
 from cade_cli.train.export import write_onnx
 
 DILATIONS = (1, 2, 4, 8, 1)
-MATCHING = PLANES + MATCH_PLANES
-"""``chooser --match-evidence``'s planes."""
 """The residual 3 x 3 layers' dilations: together with the first layer, 17 px of reach on each side."""
 
 
@@ -66,13 +64,11 @@ def targets(gt: np.ndarray, task: dict) -> tuple[np.ndarray, np.ndarray]:
 def examples(caches: list[Path], tasks: tuple[str, ...] | None = None, planes: tuple[str, ...] = PLANES
              ) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
     """(planes (P, H, W) float16, label, weight) of every task of ``caches`` (those named in ``tasks``); ``planes``:
-    which (with :data:`~cade_cli.matching.chooser_net.MATCH_PLANES` the caches must hold the right bands:
+    which (with :data:`~cade_cli.matching.chooser_net.MATCHING` the caches must hold the right bands:
     :func:`cade_cli.train.chooser.cache_candidates` adds them to an older cache)."""
     found = []
     for cache in caches:
         for gt, task in tasks_of(cache, tasks):
-            if planes != PLANES and "right" not in task:
-                raise ValueError(f"{cache} holds no right bands; cache_candidates adds them")
             stack = chooser_planes(task["left"], task["network"], task["uncertainty"], task["candidate"],
                                    task["accepted"], task.get("right"), planes)
             label, weight = targets(gt, task)

@@ -72,9 +72,7 @@ def cache_rendered(out: Path, stem: str, store, *, count: int, seed: int, textur
             continue
         left, right, gt, names = rendered_bands(np.random.default_rng([seed, index]), pool, real, size, levels)
         span = int(np.ceil(np.nanmax(gt) * MARGIN)) + 4
-        temporary = target.with_suffix(".partial.npz")
-        np.savez_compressed(temporary, **store(left, right, gt, span))
-        temporary.replace(target)
+        save_atomically(target, store(left, right, gt, span))
         print(f"cached rendered pair {index} ({names[0]} against {names[1]}, up to {span} px)", flush=True)
     return files
 
@@ -97,6 +95,12 @@ def cache_synthetic(out: Path, *, model: str, count: int, seed: int, textures: P
     return files
 
 
+def has_right_band(target: Path) -> bool:
+    """Whether the cached pair ``target`` holds its right band (its index only is read)."""
+    with np.load(target) as stored:
+        return f"{PREFIX}_right" in stored.files
+
+
 def add_right_bands(files: list[Path], *, seed: int, textures: Path, real_dir: Path | None = None,
                     size: tuple[int, int] = SIZE, levels: int = LEVELS) -> None:
     """Give the pairs of ``files`` cached before the right bands were stored (2026-12-07) their right band,
@@ -107,7 +111,7 @@ def add_right_bands(files: list[Path], *, seed: int, textures: Path, real_dir: P
     from cade_cli.train.real import RealScenes
     from cade_cli.train.textures import TexturePool
 
-    lacking = [target for target in files if f"{PREFIX}_right" not in np.load(target).files]
+    lacking = [target for target in files if not has_right_band(target)]
     if not lacking:
         return
     pool = TexturePool([textures])

@@ -66,8 +66,9 @@ class TrainConfig:
     docs/gpu-recipe.md); weights, gradients and the optimizer stay float32."""
     compile: bool = False
     """Train through ``torch.compile`` of the network (inductor; validation and the saved weights use the network
-    itself): the same recipe, fused kernels, rounding a little otherwise. On the 2-vCPU VM a campaign step takes
-    about a fifth less after a few minutes of compiling (docs/research/campaigns.md, 2026-12-07)."""
+    itself): the same recipe, fused kernels, rounding a little otherwise. On the 2-vCPU VM a campaign step took
+    0.62 s against 0.83 after a few minutes of compiling (docs/research/network-design.md, "the campaign's steps
+    faster")."""
     training_mode: str = "cade"
     """How a scene becomes a training pair (:data:`~cade_cli.train.pairs.TRAINING_MODES`):
     ``cade`` (every shipped model), or the paper's comparison modes ``csdl`` and ``pristine``
